@@ -1,0 +1,41 @@
+# pdr: `make` runs the pipeline on raw/, `make test` runs the tests.
+# Both create their own virtual environment on a fresh machine.
+
+PYTHON ?= python3
+VENV   := .venv
+PY     := $(VENV)/bin/python
+PDR    := $(VENV)/bin/pdr
+STAMP  := $(VENV)/.installed-stamp
+
+.PHONY: all run test test-fast bench bench-discovery gate setup clean
+
+all: run
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q -e '.[test]'
+	touch $(STAMP)
+
+setup: $(STAMP)
+
+run: $(STAMP)
+	$(PDR) run
+
+test: $(STAMP)
+	$(PY) -m pytest -n 2 -q
+
+test-fast: $(STAMP)
+	$(PY) -m pytest -n 2 -q -m "not slow and not viewer"
+
+gate: $(STAMP)
+	$(PDR) gate
+
+bench: $(STAMP)
+	$(PY) -m benchmarks.run_all
+
+bench-discovery: $(STAMP)
+	$(PY) -m benchmarks.discovery_matrix
+
+clean:
+	rm -rf processed

@@ -1,0 +1,222 @@
+"""Rig configuration: built-in defaults < raw/rig.toml < raw/<name>.toml.
+
+The defaults are the paper's rig (shared/MODEL.md) and live only here and in
+``pipeline.model.params``.  Every key read from a file is checked (known key,
+type, sign) and the error names the file and the key; every resolved value
+remembers where it came from, for the ingest report.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import asdict, dataclass, field, fields, replace
+from pathlib import Path
+from typing import Any, Callable
+
+from pipeline.errors import ConfigError
+from pipeline.model.effects import Effect, PlantSpec, build_spec, make_effect
+from pipeline.model.params import ControllerParams, DriveParams, ModelParams
+
+DEFAULT_SOURCE = "default"
+
+
+@dataclass(frozen=True)
+class EncoderConfig:
+    counts_per_rev: float = 6533.12      # counts per pinion rev: 64 CPR x4 decoding x 102.08 gearbox
+
+
+@dataclass(frozen=True)
+class CurrentSensorConfig:
+    sensitivity_v_per_a: float = 0.185   # V/A, ACS712-05B (0.100 for 20 A, 0.066 for 30 A parts)
+    zero_v: float | str = 2.5            # V at 0 A, or "auto": estimated from samples at rest
+    adc_vref: float = 5.0                # V, UNO analogRead reference
+    adc_steps: int = 1024                # 10-bit ADC
+
+
+@dataclass(frozen=True)
+class ColumnsConfig:
+    """Raw column names; an empty string means the sketch does not log that column."""
+
+    t_ms: str = "t_ms"
+    counts: str = "counts"
+    adc: str = "adc"
+    dir: str = "dir"
+    time_unit: str = "ms"                # "ms" (millis), "us" (micros) or "s"
+
+
+@dataclass(frozen=True)
+class IngestConfig:
+    max_bad_fraction: float = 0.2        # refuse a recording when more than this share of data lines is unreadable
+
+
+@dataclass(frozen=True)
+class RigConfig:
+    encoder: EncoderConfig = EncoderConfig()
+    current_sensor: CurrentSensorConfig = CurrentSensorConfig()
+    drive: DriveParams = DriveParams()
+    controller: ControllerParams = ControllerParams()
+    model: ModelParams = ModelParams()
+    effects: tuple[Effect, ...] = ()
+    columns: ColumnsConfig = ColumnsConfig()
+    ingest: IngestConfig = IngestConfig()
+    # "section.key" -> "default" or the path of the file that set it
+    sources: dict[str, str] = field(default_factory=dict, compare=False)
+
+    def plant_spec(self, extra_effects: tuple[Effect, ...] = ()) -> PlantSpec:
+        """The model the simulators run for this rig: [model] + [effects] (+ extra)."""
+        return build_spec(self.model, self.controller, self.drive, (*self.effects, *extra_effects))
+
+    def to_dict(self) -> dict[str, Any]:
+        """Nested plain dict in the TOML layout (round-trips through ``config_from_dict``)."""
+        out: dict[str, Any] = {}
+        for section in _SECTIONS:
+            out[section] = {k: v for k, v in asdict(getattr(self, section)).items()}
+        out["effects"] = {e.name: e.parameters for e in self.effects}
+        return out
+
+
+# section -> (dataclass type, per-key checker)
+Checker = Callable[[str, Any], Any]
+
+
+def _number(positive: bool = True, allow_zero: bool = False, lo: float | None = None,
+            hi: float | None = None, integer: bool = False) -> Checker:
+    def check(key: str, value: Any) -> Any:
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or (integer and not isinstance(value, int)):
+            kind = "an integer" if integer else "a number"
+            raise ValueError(f"expected {kind}, got {value!r}")
+        if not math.isfinite(value):
+            raise ValueError(f"expected a finite number, got {value!r}")
+        if positive and (value < 0 or (value == 0 and not allow_zero)):
+            raise ValueError(f"expected a {'non-negative' if allow_zero else 'positive'} number, got {value!r}")
+        if lo is not None and value < lo or hi is not None and value > hi:
+            raise ValueError(f"expected a value in [{lo}, {hi}], got {value!r}")
+        return value if integer else float(value)
+    return check
+
+
+def _zero_v(key: str, value: Any) -> Any:
+    if value == "auto":
+        return "auto"
+    try:
+        return _number(lo=0.0, hi=50.0, allow_zero=True)(key, value)
+    except ValueError:
+        raise ValueError(f"expected a voltage in volts or \"auto\", got {value!r}") from None
+
+
+def _string(key: str, value: Any) -> str:
+    if not isinstance(value, str):
+        raise ValueError(f"expected a column name (string, \"\" if not logged), got {value!r}")
+    return value
+
+
+def _time_unit(key: str, value: Any) -> str:
+    if value not in ("ms", "us", "s"):
+        raise ValueError(f"expected \"ms\", \"us\" or \"s\", got {value!r}")
+    return value
+
+
+_SECTIONS: dict[str, tuple[type, dict[str, Checker]]] = {
+    "encoder": (EncoderConfig, {"counts_per_rev": _number()}),
+    "current_sensor": (CurrentSensorConfig, {
+        "sensitivity_v_per_a": _number(), "zero_v": _zero_v,
+        "adc_vref": _number(), "adc_steps": _number(integer=True)}),
+    "drive": (DriveParams, {"v_in": _number()}),
+    "controller": (ControllerParams, {"period_s": _number(), "guard_rad": _number()}),
+    "model": (ModelParams, {name: _number(allow_zero=name in ModelParams.NON_NEGATIVE)
+                            for name in ModelParams.names()}),
+    "columns": (ColumnsConfig, {"t_ms": _string, "counts": _string, "adc": _string, "dir": _string,
+                                "time_unit": _time_unit}),
+    "ingest": (IngestConfig, {"max_bad_fraction": _number(lo=0.0, hi=1.0, allow_zero=True)}),
+}
+
+
+def _apply_layer(cfg: RigConfig, data: dict[str, Any], source: str) -> RigConfig:
+    sources = dict(cfg.sources)
+    changes: dict[str, Any] = {}
+    for section, table in data.items():
+        if section == "effects":
+            if not isinstance(table, dict):
+                raise ConfigError("expected a table of effects, e.g. effects.loop_delay = { Td = 0.05 }",
+                                  path=source, key="effects")
+            effects = []
+            for name, params in table.items():
+                try:
+                    effects.append(make_effect(name, params))
+                except ConfigError as err:
+                    raise ConfigError(err.detail, path=source, key=err.key) from None
+                sources[f"effects.{name}"] = source
+            # a layer's [effects] replaces the whole effect list of the layers below
+            changes["effects"] = tuple(effects)
+            continue
+        if section not in _SECTIONS:
+            raise ConfigError(f"unknown section, expected one of {', '.join([*_SECTIONS, 'effects'])}",
+                              path=source, key=section)
+        if not isinstance(table, dict):
+            raise ConfigError("expected a table", path=source, key=section)
+        cls, checkers = _SECTIONS[section]
+        updates = {}
+        for key, value in table.items():
+            if key not in checkers:
+                raise ConfigError(f"unknown key, expected one of {', '.join(checkers)}",
+                                  path=source, key=f"{section}.{key}")
+            try:
+                updates[key] = checkers[key](key, value)
+            except ValueError as err:
+                raise ConfigError(str(err), path=source, key=f"{section}.{key}") from None
+            sources[f"{section}.{key}"] = source
+        changes[section] = replace(changes.get(section, getattr(cfg, section)), **updates)
+    return replace(cfg, **changes, sources=sources)
+
+
+def default_config() -> RigConfig:
+    cfg = RigConfig()
+    sources = {f"{s}.{f.name}": DEFAULT_SOURCE for s, (cls, _) in _SECTIONS.items() for f in fields(cls)}
+    return replace(cfg, sources=sources)
+
+
+def read_toml(path: Path) -> dict[str, Any]:
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as err:
+        raise ConfigError(f"expected UTF-8 TOML text ({err.reason} at byte {err.start})", path=path) from None
+    except OSError as err:
+        raise ConfigError(f"cannot read: {err.strerror}", path=path) from None
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as err:
+        raise ConfigError(f"expected valid TOML: {err}", path=path) from None
+
+
+def resolve_config(layers: list[Path], base: RigConfig | None = None) -> RigConfig:
+    """Apply TOML files in order (later wins) over the defaults."""
+    cfg = base if base is not None else default_config()
+    for path in layers:
+        cfg = _apply_layer(cfg, read_toml(path), str(path))
+    return cfg
+
+
+def config_layers_for(csv_path: Path) -> list[Path]:
+    """The TOML files that apply to a recording: raw/rig.toml, then raw/<name>.toml, when present."""
+    folder = csv_path.parent
+    layers = [folder / "rig.toml", csv_path.with_suffix(".toml")]
+    return [p for p in layers if p.is_file()]
+
+
+def config_for_recording(csv_path: Path) -> RigConfig:
+    return resolve_config(config_layers_for(csv_path))
+
+
+def config_from_dict(data: dict[str, Any], source: str = "stored") -> RigConfig:
+    """Inverse of ``RigConfig.to_dict`` (used for the resolved config stored beside processed data)."""
+    return _apply_layer(default_config(), data, source)
+
+
+def effects_toml_snippet(effects: tuple[Effect, ...] | list[Effect]) -> str:
+    """The ``[effects]`` table a user can paste into a rig TOML (INTERFACE.md form)."""
+    lines = ["[effects]"]
+    for e in effects:
+        inner = ", ".join(f"{k} = {v:.6g}" for k, v in e.parameters.items())
+        lines.append(f"{e.name} = {{ {inner} }}")
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,79 @@
+"""The paper's parameters (Table I) as one typed object with units.
+
+Why ``Ra = 2.59 Ohm`` and not Table I's printed ``2.59e2``: with 259 Ohm the
+static gain theta/u is 0.0165 rad/V, so 6 V holds the pinion near 0.10 rad, the
+0.94 rad guard is never reached and nothing switches; with 2.59 Ohm the gain
+is 1.65 rad/V, the rig oscillates with about 13 switches in 24.95 s and the
+paper's energy estimate comes out near its 16.496 J (see shared/MODEL.md).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields, replace
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class ModelParams:
+    """Base model of eqs. (2), (4)/(8), (5): SI units, MODEL.md names."""
+
+    R: float = 49.5e-3      # m        pinion radius
+    J: float = 4.857e-4     # N m s^2  pinion + motor inertia
+    Ke: float = 1.1459      # V s/rad  back-EMF constant
+    Kt: float = 0.01819     # N m/A    torque constant
+    La: float = 18.138      # H        armature inductance
+    Ra: float = 2.59        # Ohm      armature resistance (Table I misprints 2.59e2, see module doc)
+    K1: float = 0.8682      # N/m      spring 1 stiffness
+    K2: float = 0.8682      # N/m      spring 2 stiffness
+    b: float = 7.7e-4       # N m s/rad viscous friction identified in Sec. IV-A (eq. 8); 0 gives eq. (6)
+
+    UNITS = {
+        "R": "m", "J": "N m s^2", "Ke": "V s/rad", "Kt": "N m/A", "La": "H",
+        "Ra": "Ohm", "K1": "N/m", "K2": "N/m", "b": "N m s/rad",
+    }
+    # b may be zero (the paper's eq. 6); everything else must be strictly positive.
+    NON_NEGATIVE = frozenset({"b"})
+
+    @classmethod
+    def names(cls) -> tuple[str, ...]:
+        return tuple(f.name for f in fields(cls))
+
+    def with_(self, **changes: float) -> "ModelParams":
+        return replace(self, **changes)
+
+    @property
+    def spring_torque_per_rad(self) -> float:
+        """Ks [N m/rad]: torque of both springs per radian of pinion angle, R^2 (K1 + K2)."""
+        return self.R * self.R * (self.K1 + self.K2)
+
+    def static_gain(self) -> float:
+        """theta/u at rest [rad/V]: Kt / (Ra * Ks) -- 1.65 rad/V for Table I with Ra = 2.59."""
+        return self.Kt / (self.Ra * self.spring_torque_per_rad)
+
+    def state_matrices(self) -> tuple[np.ndarray, np.ndarray]:
+        """A, B of eq. (8) for x = [I, w, delta] (eq. (6) when b = 0)."""
+        p = self
+        A = np.array([
+            [-p.Ra / p.La, -p.Ke / p.La, 0.0],                       # (2)
+            [p.Kt / p.J, -p.b / p.J, -p.R * (p.K1 + p.K2) / p.J],    # (4), (8)
+            [0.0, p.R, 0.0],                                         # (5)
+        ])
+        B = np.array([1.0 / p.La, 0.0, 0.0])
+        return A, B
+
+
+@dataclass(frozen=True)
+class ControllerParams:
+    """The Arduino's bang-bang law: sample every period_s, reverse at +/- guard_rad."""
+
+    period_s: float = 0.05                       # s   T_c, the sketch's loop period
+    guard_rad: float = 2.0 * math.pi * 0.15      # rad theta_g = 0.15 rev = 0.9425 rad
+
+
+@dataclass(frozen=True)
+class DriveParams:
+    """The H-bridge output: +v_in in q1, -v_in in q2 (Sec. IV-C)."""
+
+    v_in: float = 6.0                            # V   12 V at 25 % PWM duty as RMS, 12*sqrt(0.25)

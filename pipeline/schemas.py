@@ -1,0 +1,153 @@
+"""Table schemas, defined once in ``schemas/*.json``.
+
+Each schema lists columns with type, unit, range, allowed values, nullability
+and whether the column is required.  From that one definition come the Parquet
+schema (units in field metadata), the JSON schema of the MCAP channels, and the
+checks run before anything is written.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+
+from pipeline.errors import SchemaError
+
+SCHEMA_DIR = Path(__file__).resolve().parent.parent / "schemas"
+
+_ARROW = {
+    "float64": pa.float64(), "float32": pa.float32(), "int64": pa.int64(), "int32": pa.int32(),
+    "int16": pa.int16(), "int8": pa.int8(), "bool": pa.bool_(), "string": pa.string(),
+}
+_JSON = {"float64": "number", "float32": "number", "int64": "integer", "int32": "integer",
+         "int16": "integer", "int8": "integer", "bool": "boolean", "string": "string"}
+
+
+@dataclass(frozen=True)
+class Column:
+    name: str
+    type: str
+    unit: str
+    description: str = ""
+    nullable: bool = False
+    required: bool = True
+    min: float | None = None
+    max: float | None = None
+    allowed: tuple | None = None
+
+    @property
+    def arrow_type(self) -> pa.DataType:
+        return _ARROW[self.type]
+
+    def arrow_field(self) -> pa.Field:
+        meta = {"unit": self.unit, "description": self.description}
+        return pa.field(self.name, self.arrow_type, nullable=self.nullable, metadata=meta)
+
+    def json_schema(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"type": _JSON[self.type] if not self.nullable else [_JSON[self.type], "null"],
+                               "description": f"{self.description} [{self.unit}]"}
+        if self.min is not None:
+            out["minimum"] = self.min
+        if self.max is not None:
+            out["maximum"] = self.max
+        if self.allowed is not None:
+            out["enum"] = list(self.allowed)
+        return out
+
+
+@dataclass(frozen=True)
+class TableSchema:
+    name: str
+    description: str
+    columns: tuple[Column, ...]
+
+    def column(self, name: str) -> Column:
+        for c in self.columns:
+            if c.name == name:
+                return c
+        raise KeyError(name)
+
+    def present(self, names) -> tuple[Column, ...]:
+        """The schema's columns that are in ``names``, in schema order."""
+        names = set(names)
+        return tuple(c for c in self.columns if c.name in names)
+
+    def arrow_schema(self, names=None) -> pa.Schema:
+        cols = self.columns if names is None else self.present(names)
+        return pa.schema([c.arrow_field() for c in cols],
+                         metadata={"table": self.name, "description": self.description})
+
+    def json_schema(self, names=None, title: str | None = None) -> dict[str, Any]:
+        cols = self.columns if names is None else self.present(names)
+        return {"title": title or self.name, "description": self.description, "type": "object",
+                "properties": {c.name: c.json_schema() for c in cols},
+                "required": [c.name for c in cols]}
+
+    def check(self, df: pd.DataFrame, where: str = "") -> None:
+        """Refuse a table that breaks the schema, naming the column, the rows and the rule."""
+        prefix = f"{where}: " if where else ""
+        unknown = [c for c in df.columns if c not in {col.name for col in self.columns}]
+        if unknown:
+            raise SchemaError(f"{prefix}table '{self.name}' has column '{unknown[0]}' not defined in schemas/{self.name}.json")
+        for col in self.columns:
+            if col.name not in df.columns:
+                if col.required:
+                    raise SchemaError(f"{prefix}table '{self.name}' lacks required column '{col.name}'")
+                continue
+            s = df[col.name]
+            null = s.isna().to_numpy()
+            if null.any() and not col.nullable:
+                raise SchemaError(f"{prefix}column '{col.name}' has nulls at rows {_rows(null)}; rule: not nullable")
+            values = s.to_numpy()[~null]
+            if col.type.startswith(("int", "float")) and len(values):
+                values = values.astype(float)
+                if col.type.startswith("int") and np.any(values != np.round(values)):
+                    raise SchemaError(f"{prefix}column '{col.name}' has non-integer values at rows "
+                                      f"{_rows(np.asarray(s.to_numpy(dtype=float, na_value=0)) % 1 != 0)}; rule: {col.type}")
+                if col.type.startswith("float") and not np.all(np.isfinite(values)):
+                    bad = ~np.isfinite(s.to_numpy(dtype=float, na_value=0.0))
+                    raise SchemaError(f"{prefix}column '{col.name}' has non-finite values at rows {_rows(bad)}")
+                full = s.to_numpy(dtype=float, na_value=np.nan)
+                if col.min is not None and np.any(values < col.min):
+                    raise SchemaError(f"{prefix}column '{col.name}' below {col.min} {col.unit} at rows "
+                                      f"{_rows(full < col.min)}; rule: min {col.min}")
+                if col.max is not None and np.any(values > col.max):
+                    raise SchemaError(f"{prefix}column '{col.name}' above {col.max} {col.unit} at rows "
+                                      f"{_rows(full > col.max)}; rule: max {col.max}")
+            if col.allowed is not None and len(values):
+                bad = ~np.isin(s.to_numpy(), np.array(col.allowed)) & ~null
+                if bad.any():
+                    raise SchemaError(f"{prefix}column '{col.name}' has values outside {list(col.allowed)} "
+                                      f"at rows {_rows(bad)}")
+
+    def to_arrow(self, df: pd.DataFrame, where: str = "") -> pa.Table:
+        """Check, then convert with the schema's exact types and unit metadata."""
+        self.check(df, where)
+        schema = self.arrow_schema(df.columns)
+        return pa.Table.from_pandas(df[[f.name for f in schema]], schema=schema, preserve_index=False)
+
+
+def _rows(mask: np.ndarray, limit: int = 5) -> str:
+    idx = np.flatnonzero(mask)
+    shown = ", ".join(str(i) for i in idx[:limit])
+    return shown + (f" (+{len(idx) - limit} more)" if len(idx) > limit else "")
+
+
+@lru_cache(maxsize=None)
+def load_schema(name: str) -> TableSchema:
+    path = SCHEMA_DIR / f"{name}.json"
+    data = json.loads(path.read_text(encoding="utf-8"))
+    cols = tuple(Column(**{**c, "allowed": tuple(c["allowed"]) if "allowed" in c else None})
+                 for c in data["columns"])
+    return TableSchema(name=data["name"], description=data.get("description", ""), columns=cols)
+
+
+def schema_names() -> list[str]:
+    return sorted(p.stem for p in SCHEMA_DIR.glob("*.json"))
