@@ -23,7 +23,7 @@ DEFAULT_SOURCE = "default"
 
 @dataclass(frozen=True)
 class EncoderConfig:
-    counts_per_rev: float = 6533.12      # counts per pinion rev: 64 CPR x4 decoding x 102.08 gearbox
+    counts_per_rev: float = 6533.12      # counts per pinion rev: 64 counts per motor rev (x4 quadrature) x 102.08 gearbox
 
 
 @dataclass(frozen=True)
