@@ -45,6 +45,13 @@ def write_json(target: Path, obj: Any) -> None:
     write_text(target, json.dumps(obj, indent=2, sort_keys=True, allow_nan=False, default=_default) + "\n")
 
 
+def write_parquet(target: Path, table: Any) -> None:
+    """A pyarrow Table as Parquet; same table and pyarrow version give identical bytes."""
+    import pyarrow.parquet as pq
+    with atomic_path(target) as tmp:
+        pq.write_table(table, tmp)
+
+
 def _default(o: Any) -> Any:
     import numpy as np
     if isinstance(o, np.integer):
