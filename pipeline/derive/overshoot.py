@@ -1,0 +1,141 @@
+"""Guard overshoot (the paper's Sec. IV-B, quantified): how far past the guard the pinion turns, and why.
+
+The sketch samples the angle every 50 ms and reverses the command at the first
+sample past the guard; the current then needs time to reverse (La/Ra = 7 s
+time constant) and the pinion keeps going.  Per reversal of the command this
+module measures the angle at the trigger sample, the turning point (vertex of
+a local quadratic on the real time axis, so it is not limited to the sample
+grid), the overshoot beyond the guard, the velocity and current at the
+trigger, and the delays to the turn and to the current's zero crossing.
+
+A rig whose turning angles drift over the run (encoder slipping, a wrong
+counts-per-revolution, a guard set in counts for another decoding) shows it
+here first, so the summary flags a trend and a trigger offset.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from pipeline.derive.phases import reversal_indices
+from pipeline.derive.stats import describe
+from pipeline.derive.velocity import local_polyfit
+
+TURN_FIT_HALF = 2            # samples each side of the extreme sample in the vertex fit
+CURRENT_SMOOTH_WINDOW = 9    # samples of the local quadratic that smooths the current before its zero crossing
+DRIFT_LIMIT_RAD = 0.03       # rad: a trend in turning angle larger than this over the run is flagged (3 % of the guard)
+
+OVERSHOOT_COLUMNS = ["crossing", "direction", "trigger_sample", "trigger_t_s", "trigger_theta_rad",
+                     "trigger_excess_rad", "at_guard", "turned", "turn_t_s", "turn_theta_rad", "overshoot_rad",
+                     "turn_delay_s", "trigger_omega_rad_s", "trigger_current_a", "current_reversal_t_s",
+                     "current_reversal_delay_s"]
+
+
+def turning_point(t: np.ndarray, theta: np.ndarray, i: int, lo: int, hi: int) -> tuple[float, float]:
+    """Vertex of a least-squares parabola through the samples around the extreme sample ``i`` (within [lo, hi]).
+
+    Falls back to the sample itself when the fit has no vertex inside the
+    fitted span (flat quantised plateau, too few samples).
+    """
+    a, b = max(lo, i - TURN_FIT_HALF), min(hi, i + TURN_FIT_HALF)
+    if b - a < 2:
+        return float(t[i]), float(theta[i])
+    tt = t[a:b + 1] - t[i]
+    c2, c1, c0 = np.polyfit(tt, theta[a:b + 1], 2)
+    if c2 == 0.0:
+        return float(t[i]), float(theta[i])
+    tv = -c1 / (2.0 * c2)
+    if not (tt[0] <= tv <= tt[-1]):
+        return float(t[i]), float(theta[i])
+    return float(t[i] + tv), float(c0 - c1 * c1 / (4.0 * c2))
+
+
+def _zero_crossing(t: np.ndarray, y: np.ndarray, k: int, end: int, d: int) -> float:
+    """First time at or after sample k (before ``end``) where d*y goes from >= 0 to < 0, interpolated linearly."""
+    seg = d * y[k:end + 1]
+    neg = np.flatnonzero(seg < 0)
+    if len(neg) == 0:
+        return np.nan
+    j = k + int(neg[0])
+    if j == k:
+        return float(t[k])
+    y0, y1 = d * y[j - 1], d * y[j]
+    return float(t[j - 1] + (t[j] - t[j - 1]) * y0 / (y0 - y1))
+
+
+def overshoot_table(t: np.ndarray, theta: np.ndarray, omega: np.ndarray, current: np.ndarray | None,
+                    dirs: np.ndarray, guard_rad: float) -> pd.DataFrame:
+    """One row per command reversal (schemas/overshoot.json); ``direction`` +1 = upper guard, -1 = lower."""
+    rev = reversal_indices(dirs)
+    n = len(t)
+    smooth = local_polyfit(t, current, CURRENT_SMOOTH_WINDOW, 2) if current is not None else None
+    rows = []
+    for j, k in enumerate(rev):
+        k = int(k)
+        end = int(rev[j + 1]) if j + 1 < len(rev) else n - 1
+        d = int(dirs[k - 1])
+        i = k + int(np.argmax(d * theta[k:end + 1]))
+        # the turn was seen when the angle came back after its extreme within this phase
+        turned = i < end and d * (theta[i] - theta[end]) > 0
+        tt, th = turning_point(t, theta, i, k - 1, end) if turned else (np.nan, np.nan)
+        crossing_t = _zero_crossing(t, smooth, k, end, d) if smooth is not None else np.nan
+        rows.append({
+            "crossing": j, "direction": d, "trigger_sample": k, "trigger_t_s": float(t[k]),
+            "trigger_theta_rad": float(theta[k]), "trigger_excess_rad": float(d * theta[k] - guard_rad),
+            "at_guard": bool(d * theta[k] >= guard_rad), "turned": bool(turned),
+            "turn_t_s": tt, "turn_theta_rad": th, "overshoot_rad": d * th - guard_rad if turned else np.nan,
+            "turn_delay_s": tt - float(t[k]) if turned else np.nan,
+            "trigger_omega_rad_s": float(omega[k]),
+            "trigger_current_a": float(current[k]) if current is not None else np.nan,
+            "current_reversal_t_s": crossing_t, "current_reversal_delay_s": crossing_t - float(t[k]),
+        })
+    return pd.DataFrame(rows, columns=OVERSHOOT_COLUMNS).astype(
+        {"crossing": "int32", "direction": "int8", "trigger_sample": "int64", "at_guard": "bool", "turned": "bool"})
+
+
+def _trend(times: np.ndarray, values: np.ndarray) -> tuple[float, bool]:
+    """Change of ``values`` over the span of ``times`` from a straight-line fit, and whether it is significant (> 3 SE)."""
+    if len(values) < 3 or np.ptp(times) == 0:
+        return 0.0, False
+    A = np.vstack([times - times.mean(), np.ones_like(times)]).T
+    coef, *_ = np.linalg.lstsq(A, values, rcond=None)
+    resid = values - A @ coef
+    dof = len(values) - 2
+    se = np.sqrt(np.sum(resid ** 2) / dof / np.sum((times - times.mean()) ** 2)) if dof > 0 else np.inf
+    return float(coef[0] * np.ptp(times)), bool(abs(coef[0]) > 3 * se)
+
+
+def overshoot_summary(table: pd.DataFrame, guard_rad: float, period_s: float, dir_logged: bool) -> dict:
+    """Statistics per direction (mean, spread, max) and the drift / guard-offset flags.
+
+    The first reversal at each guard is left out of the trend: the run starts
+    from rest and its first swing is larger than the steady ones.
+    """
+    out: dict = {"guard_rad": guard_rad, "crossings": int(len(table)), "directions": {}, "flags": []}
+    for d, name in ((1, "upper"), (-1, "lower")):
+        sub = table[table["direction"] == d]
+        steady = sub[sub["turned"]].iloc[1:]
+        drift, significant = _trend(steady["turn_t_s"].to_numpy(float), steady["overshoot_rad"].to_numpy(float))
+        out["directions"][name] = {
+            "overshoot_rad": describe(sub["overshoot_rad"]),
+            "trigger_excess_rad": describe(sub["trigger_excess_rad"]),
+            "turn_delay_s": describe(sub["turn_delay_s"]),
+            "current_reversal_delay_s": describe(sub["current_reversal_delay_s"]),
+            "drift_rad": drift,
+            "drifting": bool(significant and abs(drift) > DRIFT_LIMIT_RAD),
+        }
+        if out["directions"][name]["drifting"]:
+            out["flags"].append(f"{name} turning angle drifts by {drift:+.3f} rad over the run "
+                                "(encoder slip or counts_per_rev error?)")
+    if dir_logged and len(table):
+        # the sketch reverses at the first sample past its guard: within one sample's travel beyond it
+        reach = np.abs(table["trigger_omega_rad_s"].to_numpy(float)) * period_s * 1.5 + 0.01
+        excess = table["trigger_excess_rad"].to_numpy(float)
+        off = (excess < -0.01) | (excess > reach)
+        if off.mean() > 0.5:
+            out["flags"].append(f"logged reversals at a median {np.median(np.abs(table['trigger_theta_rad'])):.3f} rad, "
+                                f"guard is {guard_rad:.3f} rad (check encoder.counts_per_rev and controller.guard_rad)")
+    out["drift_flag"] = any("drifts" in f for f in out["flags"])
+    out["guard_offset_flag"] = any("logged reversals" in f for f in out["flags"])
+    return out

@@ -1,0 +1,97 @@
+"""Phases of the hybrid automaton: maximal runs of one command (q1 = +1, q2 = -1, off = 0).
+
+The command comes from the logged ``dir`` column when the sketch prints it;
+otherwise it is reconstructed with the sketch's own rule (``next_dir``, shared
+with the simulator) from the logged angle, which is what the Arduino decided
+on.  ``dir[k]`` is the command applied *after* sample k, so a phase starts at
+the sample that decided it and ends at the sample that decided the next one.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from pipeline.model.simulate import next_dir
+
+MODE_OF_DIR = {1: 1, -1: 2, 0: 0}      # schemas/signals.json: 1 = q1, 2 = q2, 0 = motor off
+
+
+def infer_dir(t_s: np.ndarray, theta_rad: np.ndarray, guard_rad: float) -> np.ndarray:
+    """The command the sketch must have applied at each sample, from the guards (int8 -1/1).
+
+    The run starts in q1 (the sketch's initial mode, MODEL.md) unless the data
+    say otherwise: when the first guard the angle reaches is the lower one, the
+    motor was driving down, so the run starts in q2.
+    """
+    theta = np.asarray(theta_rad, dtype=float)
+    if len(np.asarray(t_s)) != len(theta):
+        raise ValueError("infer_dir: t_s and theta_rad must have the same length")
+    out = np.empty(len(theta), dtype=np.int8)
+    beyond = np.flatnonzero(np.abs(theta) >= guard_rad)
+    d = -1 if len(beyond) and theta[beyond[0]] <= -guard_rad else 1
+    for k, th in enumerate(theta):
+        d = next_dir(d, float(th), guard_rad)
+        out[k] = d
+    return out
+
+
+def phase_bounds(dirs: np.ndarray) -> np.ndarray:
+    """Index of the first sample of each phase (a new phase starts where the command changes)."""
+    dirs = np.asarray(dirs)
+    if len(dirs) == 0:
+        return np.zeros(0, dtype=np.int64)
+    return np.concatenate([[0], np.flatnonzero(dirs[1:] != dirs[:-1]) + 1]).astype(np.int64)
+
+
+def reversal_indices(dirs: np.ndarray) -> np.ndarray:
+    """Samples at which the command reversed (+1 -> -1 or -1 -> +1): the guard triggers."""
+    dirs = np.asarray(dirs)
+    return (np.flatnonzero((dirs[1:] == -dirs[:-1]) & (dirs[1:] != 0)) + 1).astype(np.int64)
+
+
+def _signed_peak(x: np.ndarray) -> float:
+    return float(x[np.argmax(np.abs(x))])
+
+
+def phase_table(t: np.ndarray, theta: np.ndarray, omega: np.ndarray, current: np.ndarray | None,
+                dirs: np.ndarray, guard_rad: float) -> pd.DataFrame:
+    """One row per phase (schemas/phases.json).
+
+    A phase's samples run from the sample that started it to the one that ended
+    it (inclusive: the command held over that whole span).  ``ended_at_guard``:
+    the next phase reverses the command and its first sample is at or beyond
+    the guard the phase was driving towards.
+    """
+    starts = phase_bounds(dirs)
+    n = len(t)
+    rows = []
+    for j, s in enumerate(starts):
+        nxt = int(starts[j + 1]) if j + 1 < len(starts) else None
+        e = nxt if nxt is not None else n - 1
+        d = int(dirs[s])
+        sl = slice(s, e + 1)
+        th = theta[sl]
+        if nxt is None:
+            reason = "end of recording"
+        elif dirs[nxt] == -d and d != 0:
+            reason = "guard" if d * theta[nxt] >= guard_rad else "reversed before guard"
+        elif dirs[nxt] == 0:
+            reason = "motor off"
+        else:
+            reason = "motor on"
+        rows.append({
+            "phase": j, "start_s": float(t[s]), "end_s": float(t[e]), "duration_s": float(t[e] - t[s]),
+            "dir": d, "mode": MODE_OF_DIR[d], "first_sample": int(s), "n_samples": int(e - s + (nxt is None)),
+            "peak_omega_rad_s": _signed_peak(omega[sl]),
+            "peak_current_a": _signed_peak(current[sl]) if current is not None else np.nan,
+            "theta_extreme_rad": float(th[np.argmax(d * th)] if d != 0 else _signed_peak(th)),
+            "ended_at_guard": reason == "guard", "end_reason": reason,
+        })
+    return pd.DataFrame(rows, columns=PHASE_COLUMNS).astype(PHASE_DTYPES)
+
+
+PHASE_COLUMNS = ["phase", "start_s", "end_s", "duration_s", "dir", "mode", "first_sample", "n_samples",
+                 "peak_omega_rad_s", "peak_current_a", "theta_extreme_rad", "ended_at_guard", "end_reason"]
+PHASE_DTYPES = {"phase": "int32", "dir": "int8", "mode": "int8", "first_sample": "int64", "n_samples": "int64",
+                "ended_at_guard": "bool", "end_reason": "object"}

