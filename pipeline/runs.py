@@ -70,3 +70,26 @@ def load_config(paths: RunPaths) -> RigConfig:
     """The rig configuration resolved at ingest time (stored so later stages never re-read TOML)."""
     data = json.loads(paths.rig_config.read_text(encoding="utf-8"))
     return config_from_dict(data["config"], source=str(paths.rig_config))
+
+
+def resolve_runs(recording: str | Path, processed: Path) -> list[RunPaths]:
+    """The processed runs a user means by RECORDING: a processed run folder, a run name, or a raw CSV path
+    (its runs ``<stem>`` or ``<stem>-seg1``, ``-seg2``, ...).  Refuses, naming it, when nothing matches."""
+    from pipeline.errors import PdrError
+
+    item = Path(recording)
+    if item.is_dir():
+        return [RunPaths(item)]
+    if item.suffix.lower() == ".csv":
+        stem = item.stem
+        segs = sorted((p for p in Path(processed).glob(f"{stem}-seg*") if p.name[len(stem) + 4:].isdigit()),
+                      key=lambda p: int(p.name[len(stem) + 4:]))
+        found = ([Path(processed) / stem] if (Path(processed) / stem).is_dir() else []) + segs
+        if not found:
+            raise PdrError(f"no processed run for this recording in {processed}/: run `pdr ingest` on it first",
+                           path=item)
+        return [RunPaths(p) for p in found]
+    if (Path(processed) / str(recording)).is_dir():
+        return [RunPaths(Path(processed) / str(recording))]
+    raise PdrError(f"expected a processed run folder, a run name in {processed}/ or a raw .csv path",
+                   path=str(recording))
