@@ -10,8 +10,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
-
-import pandas as pd
+from typing import TYPE_CHECKING
 
 from pipeline.config import RigConfig, config_from_dict
 
@@ -62,7 +61,13 @@ def run_paths(processed: Path, run: str) -> RunPaths:
     return RunPaths(Path(processed) / run)
 
 
+if TYPE_CHECKING:  # pandas is imported lazily: `pdr run` with nothing to do must start fast
+    import pandas as pd
+
+
 def load_signals(paths: RunPaths) -> pd.DataFrame:
+    import pandas as pd
+
     return pd.read_parquet(paths.signals)
 
 

@@ -1,18 +1,101 @@
-"""Placeholder until the validate stage lands."""
+"""``pdr validate``, ``pdr gate`` and ``pdr view``: thin typer commands, heavy imports inside."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
 
 from pipeline.errors import PdrError
 
-
-def validate() -> None:
-    """(not built yet)"""
-    raise PdrError("validate is being built")
+DEFAULT_PROCESSED = Path("processed")
+DEFAULT_THRESHOLDS = Path("raw/thresholds.toml")
 
 
-def gate() -> None:
-    """(not built yet)"""
-    raise PdrError("gate is being built")
+def validate(
+    recordings: list[str] = typer.Argument(..., help="Raw CSV paths, run names or run folders."),
+    model: Optional[Path] = typer.Option(None, "--model", help="TOML with [model]/[effects] to use instead of the rig's."),
+    processed: Path = typer.Option(DEFAULT_PROCESSED, "--processed", help="Folder of processed runs."),
+    no_rrd: bool = typer.Option(False, "--no-rrd", help="Skip the Rerun recording."),
+    no_png: bool = typer.Option(False, "--no-png", help="Skip the overview PNG."),
+) -> None:
+    """Rerun the hybrid model on derived runs (closed loop and replay) and write validation.json,
+    comparison.parquet, <run>.rrd and overview.png.
+
+    Example: pdr validate raw/example.csv --model my_model.toml
+    """
+    from pipeline.run import processed_lock
+    from pipeline.runs import resolve_runs
+    from pipeline.validate.stage import validate_run
+    from pipeline.validate.summary import render_summary, write_summary
+
+    runs = [r for rec in recordings for r in resolve_runs(rec, processed)]
+    with processed_lock(processed):
+        for paths in runs:
+            row = validate_run(paths, model, rrd=not no_rrd, png=not no_png)
+            typer.echo(f"{row['run']}: replay MSE theta {row['replay_theta_mse']:.4g} rad^2, "
+                       f"omega {row['replay_omega_mse']:.4g} (rad/s)^2"
+                       + (f", current {row['replay_current_mse']:.4g} A^2" if row['replay_current_mse'] is not None else ""))
+        table = write_summary(processed)
+    render_summary(table[table["run"].isin([r.name for r in runs])])
 
 
-def view() -> None:
-    """(not built yet)"""
-    raise PdrError("view is being built")
+def gate(
+    processed: Path = typer.Option(DEFAULT_PROCESSED, "--processed", help="Folder of processed runs."),
+    thresholds: Path = typer.Option(DEFAULT_THRESHOLDS, "--thresholds", help="MSE thresholds TOML."),
+) -> None:
+    """Check every processed run's MSEs against its thresholds; exit 1 if any run exceeds.
+
+    Example: pdr gate --thresholds raw/thresholds.toml
+    """
+    from rich.console import Console
+    from rich.table import Table
+
+    from pipeline.validate.gate import UNITS, gate as run_gate, load_thresholds
+
+    spec = load_thresholds(thresholds)
+    verdicts = run_gate(processed, spec)
+    if not verdicts:
+        raise PdrError("no processed runs to gate (run pdr run first)", path=processed)
+    console = Console()
+    table = Table(title=f"MSE gate ({spec.source})")
+    for head in ("run", "way", "signal", "MSE", "threshold", "margin", ""):
+        table.add_column(head, justify="left" if head in ("run", "way", "signal", "") else "right")
+    for v in verdicts:
+        if v.problem:
+            table.add_row(v.run, "-", "-", "-", "-", "-", f"[red]FAIL[/] {v.problem}")
+            continue
+        for c in v.checks:
+            margin = "-" if c.margin is None else f"{100 * c.margin:+.0f} %"
+            status = "[green]ok[/]" if c.threshold is not None and c.passed else (
+                "[red]FAIL[/]" if not c.passed else "not gated")
+            table.add_row(c.run, c.way, f"{c.signal} [{UNITS[c.signal]}]", f"{c.mse:.4g}" if c.mse is not None else "-",
+                          "-" if c.threshold is None else f"{c.threshold:.4g}", margin, status)
+    console.print(table)
+    failed = [v for v in verdicts if not v.passed]
+    if failed:
+        for v in failed:
+            typer.echo(f"gate: FAIL {v.run}: " + "; ".join(v.failures()), err=True)
+        typer.echo(f"gate: {len(failed)} of {len(verdicts)} runs exceed their thresholds", err=True)
+        raise typer.Exit(1)
+    typer.echo(f"gate: all {len(verdicts)} runs within their thresholds")
+
+
+def view(
+    name: str = typer.Argument(..., help="Run name (or a path to an .rrd file)."),
+    processed: Path = typer.Option(DEFAULT_PROCESSED, "--processed", help="Folder of processed runs."),
+) -> None:
+    """Open a run's Rerun recording (with its saved layout) in the Rerun viewer.
+
+    Example: pdr view example
+    """
+    import subprocess
+
+    from pipeline.runs import run_paths
+    from pipeline.validate.rerun_log import rerun_executable
+
+    path = Path(name) if name.endswith(".rrd") else run_paths(processed, name).rrd
+    if not path.is_file():
+        raise PdrError("no Rerun recording: validate the run first (pdr run or pdr validate)", path=path)
+    subprocess.Popen([rerun_executable(), str(path)])

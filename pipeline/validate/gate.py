@@ -1,0 +1,164 @@
+"""``pdr gate``: per-run MSE thresholds, so a change that degrades validation fails CI.
+
+Thresholds live in a TOML file (``raw/thresholds.toml`` by default): defaults
+per way of simulating (``replay``: the continuous dynamics; ``closed_loop``:
+with the simulator's own switching) and signal, plus per-recording overrides::
+
+    [default.replay]          # MSE: theta rad^2, omega (rad/s)^2, current A^2
+    theta = 1e-3
+    [runs."bench-0001".replay]
+    omega = 0.2
+
+A signal without a threshold is reported but not gated.  A run counts as
+failed when any gated MSE exceeds its threshold, and also when it has no
+``validation.json`` (the pipeline did not get that far).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+from pipeline.config import read_toml
+from pipeline.errors import ConfigError, PdrError
+
+WAYS = ("replay", "closed_loop")
+SIGNALS = ("theta", "omega", "current")
+UNITS = {"theta": "rad^2", "omega": "(rad/s)^2", "current": "A^2"}
+
+Thresholds = dict[str, dict[str, float]]        # way -> signal -> MSE threshold
+
+
+@dataclass(frozen=True)
+class ThresholdFile:
+    default: Thresholds
+    runs: dict[str, Thresholds]
+    source: str
+
+    def for_run(self, run: str) -> Thresholds:
+        """Defaults overlaid with the run's own table (a segment ``x-seg2`` also matches ``x``)."""
+        out = {way: dict(self.default.get(way, {})) for way in WAYS}
+        stem = run.rsplit("-seg", 1)[0]
+        for key in (stem, run) if stem != run else (run,):
+            for way, table in self.runs.get(key, {}).items():
+                out[way].update(table)
+        return out
+
+
+def _ways(table: object, source: str, where: str) -> Thresholds:
+    if not isinstance(table, dict):
+        raise ConfigError("expected a table with [..replay] and/or [..closed_loop]", path=source, key=where)
+    out: Thresholds = {}
+    for way, signals in table.items():
+        if way not in WAYS:
+            raise ConfigError(f"unknown way, expected one of {', '.join(WAYS)}", path=source, key=f"{where}.{way}")
+        if not isinstance(signals, dict):
+            raise ConfigError("expected a table of MSE thresholds", path=source, key=f"{where}.{way}")
+        out[way] = {}
+        for sig, value in signals.items():
+            key = f"{where}.{way}.{sig}"
+            if sig not in SIGNALS:
+                raise ConfigError(f"unknown signal, expected one of {', '.join(SIGNALS)}", path=source, key=key)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0 \
+                    or not math.isfinite(value):
+                raise ConfigError(f"expected a positive MSE threshold in {UNITS[sig]}, got {value!r}",
+                                  path=source, key=key)
+            out[way][sig] = float(value)
+    return out
+
+
+def parse_thresholds(data: dict, source: str) -> ThresholdFile:
+    unknown = [k for k in data if k not in ("default", "runs")]
+    if unknown:
+        raise ConfigError("unknown section, expected [default.<way>] or [runs.\"<run>\".<way>]",
+                          path=source, key=unknown[0])
+    runs = data.get("runs", {})
+    if not isinstance(runs, dict):
+        raise ConfigError("expected a table of runs", path=source, key="runs")
+    return ThresholdFile(default=_ways(data.get("default", {}), source, "default"),
+                         runs={name: _ways(t, source, f"runs.{name}") for name, t in runs.items()},
+                         source=source)
+
+
+def load_thresholds(path: Path) -> ThresholdFile:
+    if not Path(path).is_file():
+        raise PdrError("thresholds file not found (expected TOML with [default.replay] etc.)", path=path)
+    return parse_thresholds(read_toml(Path(path)), str(path))
+
+
+@dataclass(frozen=True)
+class Check:
+    run: str
+    way: str
+    signal: str
+    mse: float | None
+    threshold: float | None
+
+    @property
+    def passed(self) -> bool:
+        return self.threshold is None or (self.mse is not None and self.mse <= self.threshold)
+
+    @property
+    def margin(self) -> float | None:
+        """Threshold minus MSE as a share of the threshold: negative when exceeded."""
+        if self.threshold is None or self.mse is None:
+            return None
+        return 1.0 - self.mse / self.threshold
+
+
+@dataclass(frozen=True)
+class RunVerdict:
+    run: str
+    checks: tuple[Check, ...]
+    problem: str | None = None      # set when the run could not be checked at all
+
+    @property
+    def passed(self) -> bool:
+        return self.problem is None and all(c.passed for c in self.checks)
+
+    def failures(self) -> list[str]:
+        if self.problem:
+            return [self.problem]
+        return [f"{c.way} {c.signal} MSE {c.mse:.4g} > {c.threshold:.4g} {UNITS[c.signal]}"
+                if c.mse is not None else f"{c.way} {c.signal} MSE missing"
+                for c in self.checks if not c.passed]
+
+
+def check_run(validation: dict, thresholds: Thresholds) -> RunVerdict:
+    """Pure: one run's validation figures against its thresholds."""
+    run = validation["run"]
+    checks = []
+    for way in WAYS:
+        for sig in SIGNALS:
+            e = validation.get(way, {}).get("signals", {}).get(sig)
+            limit = thresholds.get(way, {}).get(sig)
+            if e is None and limit is None:
+                continue
+            if e is None:
+                # Not logged (e.g. no current sensor): nothing to gate.
+                continue
+            checks.append(Check(run, way, sig, e.get("mse"), limit))
+    return RunVerdict(run, tuple(checks))
+
+
+def run_dirs(processed: Path) -> list[Path]:
+    """Every run folder of ``processed/`` (one per ingested segment), sorted by name."""
+    if not processed.is_dir():
+        return []
+    return sorted(p for p in processed.iterdir()
+                  if p.is_dir() and not p.name.startswith(".") and (p / "rig.json").is_file())
+
+
+def gate(processed: Path, thresholds: ThresholdFile) -> list[RunVerdict]:
+    """Every run in ``processed/`` against its thresholds (a run without validation fails)."""
+    verdicts = []
+    for root in run_dirs(processed):
+        path = root / "validation.json"
+        if not path.is_file():
+            verdicts.append(RunVerdict(root.name, (), problem="no validation.json (pipeline failed before validate)"))
+            continue
+        validation = json.loads(path.read_text(encoding="utf-8"))
+        verdicts.append(check_run(validation, thresholds.for_run(root.name)))
+    return verdicts

@@ -1,0 +1,145 @@
+"""The validate stage's shell: read a derived run, rerun the model, write the outputs.
+
+``validate_run(paths)`` reads ``kinematics.parquet`` and the rig configuration
+stored at ingest (``rig.json``), runs the pure comparison (``compare.py``) and
+writes ``validation.json``, ``comparison.parquet``, ``<run>.rrd`` and
+``overview.png`` into ``processed/<run>/``, each atomically.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import asdict
+from pathlib import Path
+
+import pandas as pd
+
+from pipeline.config import RigConfig, resolve_config
+from pipeline.errors import PdrError
+from pipeline.io.atomic import write_json, write_parquet
+from pipeline.model.effects import PlantSpec
+from pipeline.runs import RunPaths, load_config
+from pipeline.schemas import load_schema
+from pipeline.validate.compare import comparison_table, compare, initial_state, simulate_both
+
+ModelOverride = Path | str | RigConfig | PlantSpec | None
+
+
+def finite_or_none(obj):
+    """JSON has no NaN: undefined figures (e.g. no switches, so no period) become null."""
+    if isinstance(obj, dict):
+        return {k: finite_or_none(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [finite_or_none(v) for v in obj]
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
+
+
+def resolve_model(cfg: RigConfig, override: ModelOverride) -> tuple[PlantSpec, str]:
+    """The plant to run and where it came from: the rig's [model]+[effects], or a model file/object."""
+    if override is None:
+        return cfg.plant_spec(), "rig configuration ([model] and [effects] stored at ingest)"
+    if isinstance(override, PlantSpec):
+        return override, "model given by the caller"
+    if isinstance(override, RigConfig):
+        return override.plant_spec(), "rig configuration given by the caller"
+    path = Path(override)
+    if not path.is_file():
+        raise PdrError("model file not found (expected a TOML with [model] and/or [effects])", path=path)
+    return resolve_config([path], base=cfg).plant_spec(), str(path)
+
+
+def _model_json(spec: PlantSpec, source: str) -> dict:
+    return {"source": source, "params": asdict(spec.params), "v_drive": spec.v_drive,
+            "guard_rad": spec.guard_rad, "period_s": spec.period_s,
+            "nonsmooth": {"Tc": spec.Tc, "gap": spec.gap, "Td": spec.Td, "I0": spec.I0}}
+
+
+def load_kinematics(paths: RunPaths) -> pd.DataFrame:
+    if not paths.kinematics.is_file():
+        raise PdrError("no kinematics.parquet: run the derive stage first (pdr derive or pdr run)",
+                       path=paths.root)
+    kin = pd.read_parquet(paths.kinematics)
+    missing = [c for c in ("t_s", "theta_rad", "omega_rad_s", "dir") if c not in kin.columns]
+    if missing:
+        raise PdrError(f"kinematics table lacks column '{missing[0]}'", path=paths.kinematics)
+    if len(kin) < 2:
+        raise PdrError(f"kinematics table has {len(kin)} rows, at least 2 are needed to validate",
+                       path=paths.kinematics)
+    return kin
+
+
+def _phase_stats(paths: RunPaths) -> pd.DataFrame | None:
+    """The derive stage's per-phase table, shown in the viewer's statistics panel when present."""
+    if not paths.phases.is_file():
+        return None
+    return pd.read_parquet(paths.phases).head(40)
+
+
+def write_comparison(target: Path, table: pd.DataFrame) -> None:
+    write_parquet(target, load_schema("comparison").to_arrow(table, where=str(target)))
+
+
+def validate_run(paths: RunPaths, model_override: ModelOverride = None, *, rrd: bool = True,
+                 png: bool = True) -> dict:
+    """Validate one derived run; returns the summary row (``summary_row``) plus ``timing_s``."""
+    from pipeline.validate.plots import write_overview
+    from pipeline.validate.rerun_log import write_rrd
+
+    timing: dict[str, float] = {}
+    t0 = time.perf_counter()
+    kin = load_kinematics(paths)
+    cfg = load_config(paths)
+    spec, source = resolve_model(cfg, model_override)
+    t1 = time.perf_counter()
+    try:
+        sims = simulate_both(spec, kin)
+    except ValueError as err:
+        raise PdrError(f"the model cannot be simulated: {err}", path=paths.root) from None
+    t2 = time.perf_counter()
+    result = compare(kin, spec, sims)
+    validation = finite_or_none({
+        "run": paths.name, "model": _model_json(spec, source),
+        "n_samples": int(len(kin)), "duration_s": float(kin["t_s"].iloc[-1] - kin["t_s"].iloc[0]),
+        "dir_inferred": bool(kin["dir_inferred"].any()) if "dir_inferred" in kin.columns else False,
+        "initial_state": dict(zip(("current_a", "omega_rad_s", "delta_m"), initial_state(kin, spec))),
+        **result,
+    })
+    t3 = time.perf_counter()
+    write_json(paths.validation, validation)
+    write_comparison(paths.comparison, comparison_table(kin, sims))
+    t4 = time.perf_counter()
+    if rrd:
+        write_rrd(paths.rrd, paths.name, kin, sims, validation, spec.guard_rad, _phase_stats(paths))
+    t5 = time.perf_counter()
+    if png:
+        title = (f"{paths.name}   MSE replay: theta {_short(validation, 'replay', 'theta')}, "
+                 f"omega {_short(validation, 'replay', 'omega')}, current {_short(validation, 'replay', 'current')}")
+        write_overview(paths.overview_png, title, kin, sims, spec.guard_rad)
+    t6 = time.perf_counter()
+    timing.update(load=t1 - t0, simulate=t2 - t1, metrics=t3 - t2, write_tables=t4 - t3, rrd=t5 - t4, png=t6 - t5)
+    return {**summary_row(validation), "timing_s": timing}
+
+
+def _short(validation: dict, way: str, signal: str) -> str:
+    e = validation[way]["signals"].get(signal)
+    return "-" if e is None or e["mse"] is None else f"{e['mse']:.3g}"
+
+
+def summary_row(validation: dict) -> dict:
+    """One flat row per run for ``processed/summary.csv`` and the console table."""
+    row: dict = {"run": validation["run"], "n_samples": validation["n_samples"]}
+    for way in ("replay", "closed_loop"):
+        for sig in ("theta", "omega", "current"):
+            e = validation[way]["signals"].get(sig)
+            row[f"{way}_{sig}_mse"] = None if e is None else e["mse"]
+            row[f"{way}_{sig}_fit_pct"] = None if e is None else e["fit_pct"]
+        sw = validation[way]["switches"]
+        row[f"{way}_switches"] = sw["n_simulated"]
+        row[f"{way}_max_slip_s"] = sw["max_abs_s"]
+        ee = validation[way]["energy_error"]
+        row[f"{way}_energy_error_pct"] = None if ee is None else ee["paper_pct"]
+    row["measured_switches"] = validation["closed_loop"]["switches"]["n_measured"]
+    return row
