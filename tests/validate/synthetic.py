@@ -34,3 +34,17 @@ def synthetic_kinematics(spec=None, *, duration: float = 24.95, quantise: bool =
     df["dir"] = sim.dir.astype(np.int8)
     df["dir_inferred"] = False
     return df
+
+
+def synthetic_run(processed, name: str = "synth", kin: pd.DataFrame | None = None, cfg=None):
+    """A processed run folder as ingest + derive leave it (rig.json + kinematics.parquet)."""
+    from pipeline.io.atomic import write_json
+    from pipeline.runs import run_paths
+
+    cfg = cfg if cfg is not None else default_config()
+    paths = run_paths(processed, name)
+    paths.root.mkdir(parents=True, exist_ok=True)
+    kin = kin if kin is not None else synthetic_kinematics(cfg.plant_spec(), current_noise_a=0.02)
+    kin.to_parquet(paths.kinematics)
+    write_json(paths.rig_config, {"config": cfg.to_dict(), "sources": {}})
+    return paths

@@ -1,0 +1,90 @@
+"""validate_run on a processed run folder: every output written, readable, deterministic."""
+
+import json
+
+import numpy as np
+import pandas as pd
+import pyarrow.parquet as pq
+import pytest
+from PIL import Image
+
+from pipeline.config import default_config
+from pipeline.errors import PdrError
+from pipeline.model.effects import make_effect
+from pipeline.runs import run_paths
+from pipeline.validate.stage import validate_run
+from tests.validate.synthetic import synthetic_kinematics, synthetic_run
+
+
+def test_validate_run_writes_every_output(tmp_path):
+    paths = synthetic_run(tmp_path)
+    row = validate_run(paths)
+    for f in (paths.validation, paths.comparison, paths.rrd, paths.overview_png):
+        assert f.is_file() and f.stat().st_size > 0
+    v = json.loads(paths.validation.read_text())
+    assert v["run"] == "synth" and v["n_samples"] == 500
+    assert set(v["replay"]["signals"]) == {"theta", "omega", "current"}
+    assert v["model"]["params"]["Ra"] == 2.59
+    assert row["replay_theta_mse"] == v["replay"]["signals"]["theta"]["mse"]
+    assert set(row["timing_s"]) == {"load", "simulate", "metrics", "write_tables", "rrd", "png"}
+    table = pq.read_table(paths.comparison)
+    assert table.num_rows == 500
+    assert table.schema.field("current_replay_a").metadata[b"unit"] == b"A"
+    with Image.open(paths.overview_png) as im:
+        assert im.size == (648, 432)
+    assert not list(paths.root.glob(".*tmp*"))        # no temporary files left behind
+
+
+def test_rerun_gives_identical_json_parquet_and_png(tmp_path):
+    paths = synthetic_run(tmp_path)
+    validate_run(paths)
+    first = {f: f.read_bytes() for f in (paths.validation, paths.comparison, paths.overview_png)}
+    validate_run(paths)
+    for f, data in first.items():
+        assert f.read_bytes() == data, f.name
+
+
+def test_model_file_overrides_the_rig_model(tmp_path):
+    cfg = default_config()
+    truth = cfg.plant_spec((make_effect("viscous_friction", {"b": 1.5e-3}),))
+    paths = synthetic_run(tmp_path, kin=synthetic_kinematics(truth))
+    base = validate_run(paths, rrd=False, png=False)
+    model = tmp_path / "model.toml"
+    model.write_text("[effects]\nviscous_friction = { b = 1.5e-3 }\n")
+    fixed = validate_run(paths, model, rrd=False, png=False)
+    assert fixed["replay_theta_mse"] < base["replay_theta_mse"] / 100
+    v = json.loads(paths.validation.read_text())
+    assert v["model"]["source"] == str(model)
+    assert v["model"]["params"]["b"] == pytest.approx(7.7e-4 + 1.5e-3)
+
+
+def test_without_current_the_current_metrics_are_absent(tmp_path):
+    kin = synthetic_kinematics(current=False)
+    paths = synthetic_run(tmp_path, kin=kin)
+    row = validate_run(paths, rrd=False)
+    v = json.loads(paths.validation.read_text())
+    assert "current" not in v["replay"]["signals"] and v["replay"]["energy_error"] is None
+    assert row["replay_current_mse"] is None
+    assert "current_a" not in pq.read_schema(paths.comparison).names
+
+
+def test_refusals_name_the_file(tmp_path):
+    paths = run_paths(tmp_path, "empty")
+    paths.root.mkdir()
+    with pytest.raises(PdrError, match="kinematics.parquet"):
+        validate_run(paths)
+    paths = synthetic_run(tmp_path, "nodir", kin=synthetic_kinematics().drop(columns=["dir"]))
+    with pytest.raises(PdrError, match="lacks column 'dir'"):
+        validate_run(paths)
+    paths = synthetic_run(tmp_path, "ok")
+    with pytest.raises(PdrError, match="model file not found"):
+        validate_run(paths, tmp_path / "missing.toml")
+
+
+def test_undefined_figures_are_null_in_json(tmp_path):
+    kin = synthetic_kinematics(duration=0.5)
+    paths = synthetic_run(tmp_path, kin=kin)
+    validate_run(paths, rrd=False, png=False)
+    v = json.loads(paths.validation.read_text())
+    assert v["measured"]["oscillation"]["period_s"] is None
+    assert np.isnan(pd.read_parquet(paths.comparison)["omega_rad_s"]).sum() == 0
