@@ -1,0 +1,173 @@
+"""Localise where model and measurement disagree, and how far above the noise that is.
+
+Two things live here:
+
+* the noise floor of each signal, from the data: the third difference of a
+  residual cancels everything smooth (model error varies over ~1 s, the sample
+  spacing is 50 ms), and what is left is white noise with variance 20*sigma^2
+  (C(6,3) = 20).  A median makes the estimate blind to the few kinks at
+  switches.  It is never allowed below the quantisation floor q^2/12
+  (encoder: q = 2*pi/counts_per_rev; current: one ADC step, ~26 mA at 185 mV/A).
+* signatures: where a residual concentrates, each one the fingerprint of a
+  catalogued effect (MODEL.md): a bias in the current alone (sensor offset), a
+  burst right after each switch (loop delay), energy near zero velocity
+  (Coulomb friction), after each angle zero crossing (backlash), a constant per
+  mode in the electrical equation (driver drop), and projections on w (viscous),
+  dw/dt (inertia) and theta (spring).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from math import comb
+
+import numpy as np
+
+from pipeline.discover.measurement import Measurement
+from pipeline.model.simulate import SimResult
+
+_MAD = 0.6744897501960817          # median |N(0,1)|
+
+
+def difference_noise(r: np.ndarray, order: int = 3) -> float:
+    """Variance of the white part of ``r``: robust scale of its ``order``-th difference."""
+    r = np.asarray(r, dtype=float)
+    r = r[np.isfinite(r)]
+    if len(r) <= order + 2:
+        return 0.0
+    d = np.diff(r, n=order)
+    sigma = np.median(np.abs(d - np.median(d))) / _MAD
+    return float(sigma * sigma / comb(2 * order, order))
+
+
+def quantisation_floor(meas: Measurement) -> dict[str, float]:
+    """q^2/12 per signal: the least any model can achieve on quantised data."""
+    cfg = meas.config
+    q_theta = 2.0 * np.pi / cfg.encoder.counts_per_rev
+    cs = cfg.current_sensor
+    q_current = cs.adc_vref / cs.adc_steps / cs.sensitivity_v_per_a
+    return {"theta": q_theta ** 2 / 12.0, "current": q_current ** 2 / 12.0}
+
+
+def residuals(meas: Measurement, sim: SimResult) -> dict[str, np.ndarray]:
+    """Measured minus simulated, per fitted signal (current as the sensor reads it)."""
+    out = {"theta": meas.theta - sim.theta}
+    if meas.current is not None:
+        out["current"] = meas.current - sim.current_measured
+    return out
+
+
+def noise_floor(meas: Measurement, sim: SimResult) -> dict[str, float]:
+    """Per-sample noise variance of each fitted signal, estimated on the residual of ``sim``."""
+    quant = quantisation_floor(meas)
+    res = residuals(meas, sim)
+    return {s: max(difference_noise(r), quant[s]) for s, r in res.items()}
+
+
+# ---------------------------------------------------------------- signatures
+
+@dataclass(frozen=True)
+class Events:
+    """Sample indices the signatures align on."""
+
+    switches: np.ndarray        # first sample after each command reversal
+    zero_crossings: np.ndarray  # first sample after each sign change of the measured angle
+    mode: np.ndarray            # +1 / -1 / 0 command in force over each sample
+
+
+def events(meas: Measurement) -> Events:
+    d = meas.dir
+    sw = np.flatnonzero((d[1:] != d[:-1]) & (d[1:] != 0) & (d[:-1] != 0)) + 1
+    step = 2.0 * np.pi / meas.config.encoder.counts_per_rev
+    s = np.sign(np.where(np.abs(meas.theta) <= step, 0.0, meas.theta))
+    nz = np.flatnonzero(s != 0)
+    zc = nz[1:][s[nz[1:]] != s[nz[:-1]]] if len(nz) > 1 else np.array([], dtype=int)
+    mode = np.concatenate([[0], d[:-1]]).astype(int)   # the command decided at k-1 acts over (k-1, k]
+    return Events(switches=sw, zero_crossings=zc, mode=mode)
+
+
+def _window_mask(n: int, starts: np.ndarray, width: int) -> np.ndarray:
+    m = np.zeros(n, dtype=bool)
+    for s in starts:
+        m[s:s + width] = True
+    return m
+
+
+def _ratio(r: np.ndarray, mask: np.ndarray) -> float:
+    """RMS of r inside the mask over RMS outside (1 = no concentration)."""
+    if mask.sum() < 3 or (~mask).sum() < 3:
+        return 1.0
+    inside = np.sqrt(np.mean(r[mask] ** 2))
+    outside = np.sqrt(np.mean(r[~mask] ** 2))
+    return float(inside / outside) if outside > 0 else float("inf") if inside > 0 else 1.0
+
+
+def _projection(r: np.ndarray, x: np.ndarray) -> float:
+    """Share of the residual's energy along x (0..1): how much a term proportional to x explains."""
+    ok = np.isfinite(r) & np.isfinite(x)
+    r, x = r[ok], x[ok]
+    den = float(np.dot(x, x) * np.dot(r, r))
+    return float(np.dot(r, x) ** 2 / den) if den > 0 else 0.0
+
+
+def signatures(meas: Measurement, sim: SimResult, floor: dict[str, float]) -> dict[str, dict[str, float]]:
+    """Numbers describing where each residual lives; each maps to effect fingerprints."""
+    ev = events(meas)
+    res = residuals(meas, sim)
+    n = meas.n
+    w = sim.omega
+    wmax = float(np.max(np.abs(w))) or 1.0
+    slow = np.abs(w) < 0.15 * wmax
+    after_switch = _window_mask(n, ev.switches, 3)
+    after_zero = _window_mask(n, ev.zero_crossings, 3)
+    accel = np.gradient(w, meas.t)
+    out: dict[str, dict[str, float]] = {}
+    for s, r in res.items():
+        mse = float(np.mean(r * r))
+        feats = {
+            "mse": mse,
+            "excess": max(mse / floor[s] - 1.0, 0.0),      # structure above the noise, in noise variances
+            "mean": float(np.mean(r)),
+            "mean_q1": float(np.mean(r[ev.mode == 1])) if np.any(ev.mode == 1) else 0.0,
+            "mean_q2": float(np.mean(r[ev.mode == -1])) if np.any(ev.mode == -1) else 0.0,
+            "bias_share": float(np.mean(r) ** 2 / mse) if mse > 0 else 0.0,
+            "after_switch_ratio": _ratio(r, after_switch),
+            "near_zero_velocity_ratio": _ratio(r, slow),
+            "after_zero_crossing_ratio": _ratio(r, after_zero),
+            "share_along_omega": _projection(r, w),
+            "share_along_accel": _projection(r, accel),
+            "share_along_theta": _projection(r, sim.theta),
+            "share_along_mode": _projection(r, ev.mode.astype(float)),
+        }
+        out[s] = feats
+    return out
+
+
+def describe(sig: dict[str, dict[str, float]], floor: dict[str, float]) -> list[str]:
+    """The localisation in words and numbers, most telling first."""
+    unit = {"theta": "rad", "current": "A"}
+    lines = []
+    for s, f in sig.items():
+        u = unit.get(s, "")
+        rms, noise = np.sqrt(f["mse"]), np.sqrt(floor[s])
+        if f["excess"] < 1.0:
+            lines.append(f"the {s} residual is at the noise floor (RMS {rms:.3g} {u} vs noise {noise:.3g} {u})")
+            continue
+        lines.append(f"the {s} residual has RMS {rms:.3g} {u}, {rms / noise:.1f}x its noise floor ({noise:.3g} {u})")
+        if f["bias_share"] > 0.3:
+            both = np.sign(f["mean_q1"]) == np.sign(f["mean_q2"])
+            lines.append(f"the {s} residual has a mean of {f['mean']:+.3g} {u} "
+                         f"({'in both modes' if both else 'of opposite sign in the two modes'}: "
+                         f"q1 {f['mean_q1']:+.3g}, q2 {f['mean_q2']:+.3g}); {100 * f['bias_share']:.0f}% of its energy")
+        for key, text in (("after_switch_ratio", "in the 3 samples after each switch"),
+                          ("near_zero_velocity_ratio", "near zero velocity (|w| < 15% of its peak)"),
+                          ("after_zero_crossing_ratio", "in the 3 samples after each angle zero crossing")):
+            if f[key] > 1.5:
+                lines.append(f"the {s} residual is {f[key]:.1f}x larger {text} than elsewhere")
+        for key, text in (("share_along_omega", "proportional to the velocity"),
+                          ("share_along_accel", "proportional to the acceleration"),
+                          ("share_along_theta", "proportional to the angle"),
+                          ("share_along_mode", "a constant of opposite sign in the two modes")):
+            if f[key] > 0.3:
+                lines.append(f"{100 * f[key]:.0f}% of the {s} residual energy is {text}")
+    return lines

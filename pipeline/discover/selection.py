@@ -1,0 +1,254 @@
+"""Select effects on evidence, not on the least-bad MSE.
+
+A candidate is added only when all of these hold (issue 6, step 3):
+
+1. noise:     on held-out cycles it removes at least ``MIN_GAIN_FLOORS`` noise
+              variances of mean squared error from some signal;
+2. held out:  fitted on half the cycles, it removes at least ``MIN_HELDOUT_SHARE``
+              of the structure (MSE above the noise floor) on the other half,
+              without making any signal worse by more than half a noise variance;
+3. BIC:       2*delta(nll) + k*ln(n) <= ``MAX_DELTA_BIC`` on all samples;
+4. interval:  its ~95 % interval excludes the value at which it is absent;
+5. signature: the residual pattern that points at it shrinks by half (or to the noise).
+
+The best passing candidate (largest held-out likelihood gain) is added, all
+added parameters are refitted jointly, and the round repeats (stacked effects,
+at most ``MAX_EFFECTS``).  The verdict: ``none`` when nothing was added and the
+residual is at the noise floor; ``explained`` when effects were added and what
+is left is at the noise floor; ``unexplained`` when structure remains that no
+candidate removes.  A near tie between the two best candidates is reported
+with both scores.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from pipeline.discover.candidates import (
+    Evaluator, Fit, bracket_around, fit_candidate, fit_value, folds_by_cycle, make, parameter_of, scan,
+)
+from pipeline.discover.measurement import Measurement
+from pipeline.discover.residuals import events, noise_floor, residuals
+from pipeline.model.effects import CATALOGUE, Effect
+
+MIN_GAIN_FLOORS = 0.5        # held-out MSE removed, in noise variances
+MIN_HELDOUT_SHARE = 0.5      # share of held-out structure removed
+MAX_WORSENING_FLOORS = 0.5   # no signal may get worse than this on held-out data
+MAX_DELTA_BIC = -10.0        # "strong" evidence on Kass & Raftery's scale
+SIGNATURE_SHRINK = 0.5       # the motivating pattern must at least halve ...
+SIGNATURE_NOISE = 3.0        # ... or fall to this many noise variances
+STRUCTURE_FLOORS = 25.0      # residual MSE above this many noise variances is structure
+NEAR_TIE = 0.9               # runner-up within 10 % of the winner's held-out gain
+MAX_EFFECTS = 3
+FULL_FITS = (4, 3, 3)        # per round, how many of the best-scanning candidates get the full assessment
+
+
+@dataclass
+class Assessment:
+    """One candidate's fit and evidence in one round."""
+
+    fit: Fit
+    round: int
+    delta_bic: float
+    heldout_share: float                  # best share of held-out structure removed over the signals
+    heldout_gain_floors: float            # best held-out MSE removed, in noise variances
+    worst_worsening_floors: float
+    signature_before: float
+    signature_after: float
+    checks: dict[str, bool] = field(default_factory=dict)
+
+    @property
+    def accepted(self) -> bool:
+        return all(self.checks.values())
+
+    @property
+    def score(self) -> float:
+        """The share of held-out structure the candidate removes (1 = all of it)."""
+        return self.heldout_share
+
+    def to_json(self) -> dict:
+        f = self.fit
+        return {
+            "name": f.name, "score": round(self.score, 4), "round": self.round,
+            "parameters": {f.parameter: f.value}, "units": dict(CATALOGUE[f.name].UNITS),
+            "interval": {f.parameter: list(f.interval)}, "fold_estimates": {f.parameter: list(f.fold_values)},
+            "delta_bic": self.delta_bic, "heldout_nll_gain": f.heldout_nll_gain,
+            "heldout_gain_noise_floors": self.heldout_gain_floors,
+            "heldout_mse_before": f.heldout_mse_before, "heldout_mse_after": f.heldout_mse_after,
+            "signature_before": self.signature_before, "signature_after": self.signature_after,
+            "checks": dict(self.checks), "accepted": self.accepted,
+        }
+
+
+@dataclass
+class Screened:
+    """A candidate whose coarse scan gained too little to be worth a full fit this round."""
+
+    name: str
+    round: int
+    value: float            # best scan point
+    scan_gain: float        # nll decrease at that point, all samples
+
+    accepted = False
+    score = 0.0
+
+    def to_json(self) -> dict:
+        p = parameter_of(self.name)
+        return {"name": self.name, "score": 0.0, "round": self.round, "parameters": {p: self.value},
+                "units": dict(CATALOGUE[self.name].UNITS), "scan_nll_gain": self.scan_gain,
+                "screened_out": True, "accepted": False}
+
+
+# ------------------------------------------------------------ signatures per effect
+
+def signature_energy(name: str, meas: Measurement, ev: Evaluator, effects: tuple[Effect, ...]) -> float:
+    """Energy of the residual pattern that points at ``name``, in noise variances (~1 for pure noise)."""
+    sim = ev.sim(effects)
+    res = residuals(meas, sim)
+    evs = events(meas)
+    w = sim.omega
+    wmax = float(np.max(np.abs(w))) or 1.0
+    masks = {
+        "loop_delay": _after(meas.n, evs.switches, 3),
+        "coulomb_friction": np.abs(w) < 0.15 * wmax,
+        "backlash": _after(meas.n, evs.zero_crossings, 3),
+    }
+    directions = {
+        "viscous_friction": w,
+        "rack_inertia": np.gradient(w, meas.t),
+        "spring_stiffness": sim.theta,
+        "driver_voltage_drop": evs.mode.astype(float),
+        "current_sensor_offset": np.ones(meas.n),
+    }
+    total = 0.0
+    for s, r in res.items():
+        if name == "current_sensor_offset" and s != "current":
+            continue
+        fl = ev.floor[s]
+        if name in masks:
+            m = masks[name]
+            total += float(np.mean(r[m] ** 2)) / fl if m.any() else 0.0
+        else:
+            x = directions[name]
+            den = float(np.dot(x, x))
+            total += float(np.dot(r, x) ** 2 / den) / fl if den > 0 else 0.0
+    return total
+
+
+def _after(n: int, starts: np.ndarray, width: int) -> np.ndarray:
+    m = np.zeros(n, dtype=bool)
+    for s in starts:
+        m[s:s + width] = True
+    return m
+
+
+# ------------------------------------------------------------ evidence
+
+def assess(ev: Evaluator, meas: Measurement, effects: tuple[Effect, ...], name: str,
+           folds: tuple[np.ndarray, np.ndarray], round_: int,
+           scanned: tuple[np.ndarray, np.ndarray] | None = None) -> Assessment:
+    fit = fit_candidate(ev, effects, name, folds, scanned=scanned)
+    trial = (*effects, fit.effect)
+    n_obs = meas.n * len(meas.signals)
+    nll_before = ev.nll(ev.sim(effects))
+    delta_bic = 2.0 * (fit.nll - nll_before) + 1.0 * np.log(n_obs)
+    shares, gains, worse = [], [], []
+    for s, fl in ev.floor.items():
+        b, a = fit.heldout_mse_before[s], fit.heldout_mse_after[s]
+        gains.append((b - a) / fl)
+        worse.append((a - b) / fl)
+        shares.append((b - a) / max(b - fl, fl))
+    sig_b = signature_energy(name, meas, ev, effects)
+    sig_a = signature_energy(name, meas, ev, trial)
+    a = Assessment(fit=fit, round=round_, delta_bic=float(delta_bic), heldout_share=float(max(shares)),
+                   heldout_gain_floors=float(max(gains)), worst_worsening_floors=float(max(worse)),
+                   signature_before=sig_b, signature_after=sig_a)
+    a.checks = {
+        "improvement_vs_noise": a.heldout_gain_floors >= MIN_GAIN_FLOORS,
+        "heldout": a.heldout_share >= MIN_HELDOUT_SHARE and a.worst_worsening_floors <= MAX_WORSENING_FLOORS
+                   and fit.heldout_nll_gain > 0,
+        "bic": a.delta_bic <= MAX_DELTA_BIC,
+        "interval_excludes_null": fit.excludes_null,
+        "signature_removed": sig_a <= SIGNATURE_SHRINK * sig_b or sig_a <= SIGNATURE_NOISE,
+    }
+    return a
+
+
+def refit_jointly(ev: Evaluator, effects: tuple[Effect, ...], sweeps: int = 2) -> tuple[Effect, ...]:
+    """Coordinate descent over the added effects' parameters, each in a bracket around its value."""
+    current = list(effects)
+    if len(current) < 2:
+        return effects
+    for _ in range(sweeps):
+        for i, e in enumerate(current):
+            others = tuple(current[:i] + current[i + 1:])
+            v = next(iter(e.parameters.values()))
+            v_new, _ = fit_value(ev, others, e.name, bracket=bracket_around(e.name, v, width=0.2))
+            current[i] = make(e.name, v_new)
+    return tuple(current)
+
+
+@dataclass
+class Selection:
+    effects: tuple[Effect, ...]
+    verdict: str
+    rounds: list[list[Assessment | Screened]]
+    floor: dict[str, float]
+    excess_before: dict[str, float]       # replay MSE above noise, in noise variances, base model
+    excess_after: dict[str, float]        # same for the final model
+    near_tie: dict | None
+    simulations: int
+
+
+def excess(ev: Evaluator, effects: tuple[Effect, ...]) -> dict[str, float]:
+    return {s: m / ev.floor[s] - 1.0 for s, m in ev.mse(ev.sim(effects)).items()}
+
+
+def select(meas: Measurement, names: tuple[str, ...] | None = None) -> Selection:
+    """The discovery loop on one recording (replay fits; closed loop is confirmed by the caller)."""
+    names = tuple(CATALOGUE) if names is None else names
+    floor = noise_floor(meas, meas.replay(meas.spec()))
+    ev = Evaluator(meas, floor)
+    folds = folds_by_cycle(meas)
+    effects: tuple[Effect, ...] = ()
+    rounds: list[list[Assessment | Screened]] = []
+    near_tie = None
+    for round_ in range(1, MAX_EFFECTS + 1):
+        remaining = [n for n in names if n not in {e.name for e in effects}]
+        if not remaining:
+            break
+        nll_now = ev.nll(ev.sim(effects))
+        scans = {n: scan(ev, effects, n) for n in remaining}
+        scan_gain = {n: nll_now - float(np.min(scans[n][1])) for n in remaining}
+        order = sorted(remaining, key=lambda n: -scan_gain[n])
+        k = FULL_FITS[min(round_, len(FULL_FITS)) - 1]
+        full = [n for n in order[:k] if scan_gain[n] > 0]
+        assessed = sorted((assess(ev, meas, effects, n, folds, round_, scans[n]) for n in full),
+                          key=lambda a: -a.fit.heldout_nll_gain)
+        screened = [Screened(n, round_, float(scans[n][0][np.argmin(scans[n][1])]), scan_gain[n])
+                    for n in order if n not in full]
+        rounds.append([*assessed, *screened])
+        passing = [a for a in assessed if a.accepted]
+        if not passing:
+            break
+        best = passing[0]
+        runner = next((a for a in assessed if a is not best), None)
+        if (near_tie is None and runner is not None and best.fit.heldout_nll_gain > 0
+                and runner.fit.heldout_nll_gain >= NEAR_TIE * best.fit.heldout_nll_gain):
+            near_tie = {"round": round_, "chosen": best.fit.name, "runner_up": runner.fit.name,
+                        "scores": {best.fit.name: best.score, runner.fit.name: runner.score},
+                        "heldout_nll_gain": {best.fit.name: best.fit.heldout_nll_gain,
+                                             runner.fit.name: runner.fit.heldout_nll_gain},
+                        "runner_up_accepted": runner.accepted}
+        effects = refit_jointly(ev, (*effects, best.fit.effect))
+    ex_before = excess(ev, ())
+    ex_after = excess(ev, effects)
+    structured = max(ex_after.values()) > STRUCTURE_FLOORS
+    if structured:
+        verdict = "unexplained"
+    else:
+        verdict = "explained" if effects else "none"
+    return Selection(effects=effects, verdict=verdict, rounds=rounds, floor=floor, excess_before=ex_before,
+                     excess_after=ex_after, near_tie=near_tie, simulations=ev.simulations)
