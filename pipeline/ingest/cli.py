@@ -1,8 +1,27 @@
-"""Placeholder until the ingest stage lands."""
+"""``pdr ingest``: raw CSV captures -> processed/<run>/ signals.parquet, <run>.mcap, ingest_report.json, rig.json."""
 
-from pipeline.errors import PdrError
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
 
 
-def ingest() -> None:
-    """(not built yet)"""
-    raise PdrError("the ingest command is being built")
+def ingest(
+    recordings: Annotated[list[Path], typer.Argument(help="Raw CSV captures (raw/<name>.csv); their rig TOML "
+                                                          "layers raw/rig.toml and raw/<name>.toml apply.")],
+    processed: Annotated[Path, typer.Option("--processed", "-o", help="Output folder, one sub-folder per run.")]
+    = Path("processed"),
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No console summary.")] = False,
+) -> None:
+    """Ingest recordings into schema-checked Parquet and MCAP, with units and an ingest report.
+
+    Example: pdr ingest raw/run1.csv raw/run2.csv --processed processed
+    """
+    from pipeline.ingest.stage import ingest_recording, summary_text
+
+    for csv_path in recordings:
+        result = ingest_recording(csv_path, processed)
+        if not quiet:
+            typer.echo(summary_text(result.report))

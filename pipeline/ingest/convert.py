@@ -1,0 +1,116 @@
+"""Raw counts, ADC steps and commands -> SI units, raw values kept beside them (pure).
+
+Equations (MODEL.md, paper's rig):
+  theta [rad] = 2*pi*counts / counts_per_rev          (6533.12 counts/rev: 64 CPR x4 x 102.08)
+  v [V]       = adc * adc_vref / adc_steps             (UNO: 5.0 V / 1024 steps, ~4.9 mV/step)
+  I [A]       = (v - zero_v) / sensitivity_v_per_a     (ACS712-05B: 0.185 V/A, zero near 2.5 V)
+  mode        = 1 (q1) for dir = 1, 2 (q2) for dir = -1, 0 (motor off) for dir = 0
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from pipeline.config import RigConfig
+from pipeline.errors import IngestError
+from pipeline.ingest.timing import COUNTER_RANGE, UNIT_S
+
+MIN_REST_SAMPLES = 3          # fewest samples at rest that give a zero estimate worth reporting
+
+
+@dataclass(frozen=True)
+class ZeroEstimate:
+    zero_v: float
+    spread_v: float           # standard deviation of the rest samples' voltage
+    samples: int
+    method: str               # "configured", "dir == 0", "before the encoder first moves"
+
+    def to_dict(self) -> dict:
+        return {"zero_v": self.zero_v, "spread_v": self.spread_v, "samples": self.samples, "method": self.method}
+
+
+def range_violations(values: dict[str, np.ndarray], cfg: RigConfig) -> tuple[np.ndarray, list[str]]:
+    """Per row: the first range rule it breaks ('' when none); the mask of rows breaking any."""
+    n = len(values["t_raw"])
+    reason = np.full(n, "", dtype=object)
+    span = COUNTER_RANGE[cfg.columns.time_unit]
+    t = values["t_raw"]
+    rules = [("t_raw", (t < 0) | ((t >= span) if span else np.zeros(n, bool)),
+              f"time outside 0..{int(span) - 1 if span else 'inf'} {cfg.columns.time_unit}")]
+    if "adc" in values:
+        steps = cfg.current_sensor.adc_steps
+        rules.append(("adc", (values["adc"] < 0) | (values["adc"] >= steps),
+                      f"adc outside 0..{steps - 1} (current_sensor.adc_steps = {steps})"))
+    if "dir" in values:
+        rules.append(("dir", ~np.isin(values["dir"], (-1, 0, 1)), "dir not -1, 0 or 1"))
+    for _, mask, text in reversed(rules):
+        reason[mask] = text
+    bad = reason != ""
+    return bad, reason
+
+
+def at_rest(values: dict[str, np.ndarray]) -> tuple[np.ndarray, str]:
+    """Samples with no armature current: motor commanded off, else the ones before the encoder first moves.
+
+    With ``dir`` logged, a dir == 0 sample right after a driven one is skipped
+    (the current is still decaying); without it, the encoder standing still at
+    its first value means the motor has not been driven yet.
+    """
+    if "dir" in values:
+        off = values["dir"] == 0
+        settled = off & np.concatenate(([True], off[:-1]))
+        return settled, "dir == 0"
+    counts = values["counts"]
+    moved = np.flatnonzero(counts != counts[0])
+    first = moved[0] if len(moved) else len(counts)
+    mask = np.zeros(len(counts), dtype=bool)
+    mask[:max(first - 1, 0)] = True          # the sample just before the first move may already carry current
+    return mask, "before the encoder first moves"
+
+
+def estimate_zero(values: dict[str, np.ndarray], cfg: RigConfig, source: str) -> ZeroEstimate:
+    cs = cfg.current_sensor
+    volts = values["adc"] * (cs.adc_vref / cs.adc_steps)
+    if cs.zero_v != "auto":
+        return ZeroEstimate(float(cs.zero_v), 0.0, 0, "configured")
+    rest, method = at_rest(values)
+    if rest.sum() < MIN_REST_SAMPLES:
+        raise IngestError(f"current_sensor.zero_v = \"auto\" needs at least {MIN_REST_SAMPLES} samples at rest "
+                          f"({method}), found {int(rest.sum())}; log a motor-off pre-roll or set zero_v in volts",
+                          path=source, key="current_sensor.zero_v")
+    v = volts[rest]
+    return ZeroEstimate(float(np.median(v)), float(np.std(v)), int(rest.sum()), method)
+
+
+def to_signals(values: dict[str, np.ndarray], line: np.ndarray, t_s: np.ndarray, segment: int,
+               cfg: RigConfig, zero: ZeroEstimate | None) -> pd.DataFrame:
+    """The ``signals`` table of one segment; columns a sketch does not log stay absent."""
+    cols: dict[str, np.ndarray] = {
+        "t_s": t_s,
+        "t_raw": values["t_raw"].astype(np.float64),
+        "line": line.astype(np.int64),
+        "segment": np.full(len(line), segment, dtype=np.int32),
+        "counts": values["counts"].astype(np.int64),
+        "theta_rad": values["counts"] * (2.0 * np.pi / cfg.encoder.counts_per_rev),
+    }
+    if "adc" in values and zero is not None:
+        cs = cfg.current_sensor
+        volts = values["adc"] * (cs.adc_vref / cs.adc_steps)
+        cols |= {"adc": values["adc"].astype(np.int32), "current_v": volts,
+                 "current_a": (volts - zero.zero_v) / cs.sensitivity_v_per_a}
+    if "dir" in values:
+        d = values["dir"].astype(np.int8)
+        cols |= {"dir": d, "mode": np.where(d == 1, 1, np.where(d == -1, 2, 0)).astype(np.int8)}
+    return pd.DataFrame(cols)
+
+
+def seconds_from_start(t_unwrapped: np.ndarray, unit: str) -> np.ndarray:
+    return (t_unwrapped - t_unwrapped[0]) * UNIT_S[unit]
+
+
+def saturation(adc: np.ndarray, steps: int) -> dict:
+    """Samples pinned at either end of the ADC range (current beyond what the ADC can show)."""
+    return {"low": int((adc == 0).sum()), "high": int((adc == steps - 1).sum()), "samples": int(len(adc))}

@@ -1,0 +1,179 @@
+"""A vectorised MCAP writer: one JSON message per sample per channel, built in bulk.
+
+``mcap.writer.Writer.add_message`` costs about 10 us per message in Python
+(30 s for 1,000,000 samples on three channels), while Foxglove plots a
+per-sample JSON channel against log_time with no setup.  So the message
+records are built column-wise instead: the JSON payloads are formatted by
+pyarrow string kernels (shortest round-trip float text), each record's
+31-byte header is a numpy structured array, and ``binary_join_element_wise``
+glues them into one contiguous buffer that is the chunk content.  Only the
+few records around it (header, schemas, channels, chunk, message index,
+summary, footer) go through ``mcap.records``.  The layout is the one
+``mcap.writer.Writer`` produces (chunked, LZ4, message indexes, statistics,
+summary offsets, CRCs), so any MCAP reader, the ``mcap`` library included,
+reads it back.  No wall-clock time is written: identical input, identical bytes.
+"""
+
+from __future__ import annotations
+
+import json
+import zlib
+from dataclasses import dataclass
+from typing import IO
+
+import lz4.frame
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+from mcap.data_stream import RecordBuilder
+from mcap.opcode import Opcode
+from mcap.records import (Channel, Chunk, ChunkIndex, DataEnd, Footer, Header, Metadata, MetadataIndex, Schema,
+                          Statistics, SummaryOffset)
+from mcap.writer import MCAP0_MAGIC
+
+CHUNK_BYTES = 1 << 20          # uncompressed chunk size, as mcap.writer.Writer's default
+LIBRARY = "pdr ingest (mcap_bulk)"
+_MSG_HEADER = np.dtype([("op", "u1"), ("len", "<u8"), ("channel", "<u2"), ("seq", "<u4"),
+                        ("log_time", "<u8"), ("publish_time", "<u8")])        # 31 bytes, packed
+
+
+@dataclass(frozen=True)
+class ChannelBatch:
+    """All messages of one channel: topic, JSON schema, and one JSON object per sample."""
+
+    topic: str
+    schema_name: str
+    json_schema: dict
+    fields: dict[str, np.ndarray]            # field name -> values, one per sample
+
+
+def json_objects(fields: dict[str, np.ndarray]) -> pa.Array:
+    """``{"a":1,"b":0.5}`` per row, formatted by Arrow kernels (shortest text that round-trips)."""
+    parts: list = []
+    for k, (name, values) in enumerate(fields.items()):
+        text = pc.cast(pa.array(values), pa.string())
+        parts += [("{" if k == 0 else ",") + json.dumps(name) + ":", text]
+    parts.append("}")
+    return pc.binary_join_element_wise(*[pa.scalar(p) if isinstance(p, str) else p for p in parts], "")
+
+
+def _records(payload: pa.Array, channel_id: int, log_time: np.ndarray) -> pa.Array:
+    """Complete Message records (opcode, length, header fields, payload) as one binary array."""
+    n = len(payload)
+    size = pc.binary_length(payload).to_numpy(zero_copy_only=False).astype(np.uint64)
+    head = np.empty(n, dtype=_MSG_HEADER)
+    head["op"] = int(Opcode.MESSAGE)
+    head["len"] = size + 22
+    head["channel"] = channel_id
+    head["seq"] = np.arange(n, dtype=np.uint64) & 0xFFFFFFFF
+    head["log_time"] = log_time
+    head["publish_time"] = log_time
+    heads = pa.FixedSizeBinaryArray.from_buffers(pa.binary(_MSG_HEADER.itemsize), n, [None, pa.py_buffer(head.tobytes())])
+    return pc.binary_join_element_wise(heads.cast(pa.large_binary()), payload.cast(pa.large_binary()),
+                                       pa.scalar(b"", pa.large_binary()))
+
+
+def _message_index(channel_id: int, log_time: np.ndarray, offset: np.ndarray) -> bytes:
+    pairs = np.empty(len(log_time), dtype=[("t", "<u8"), ("o", "<u8")])
+    pairs["t"], pairs["o"] = log_time, offset
+    body = np.array([channel_id], "<u2").tobytes() + np.array([pairs.nbytes], "<u4").tobytes() + pairs.tobytes()
+    return bytes([int(Opcode.MESSAGE_INDEX)]) + np.array([len(body)], "<u8").tobytes() + body
+
+
+def _flush(builder: RecordBuilder) -> bytes:
+    return builder.end()
+
+
+def write_mcap(out: IO[bytes], channels: list[ChannelBatch], log_time_ns: np.ndarray,
+               metadata: dict[str, dict[str, str]], chunk_bytes: int = CHUNK_BYTES) -> None:
+    """Write a complete MCAP file: per-sample messages in blocks of time, chunked, indexed, summarised."""
+    n = len(log_time_ns)
+    log_time_ns = np.asarray(log_time_ns, dtype=np.uint64)
+    n_ch = len(channels)
+    per_channel = [_records(json_objects(ch.fields), i + 1, log_time_ns) for i, ch in enumerate(channels)]
+    offsets = [np.frombuffer(r.buffers()[1], dtype=np.int64, count=len(r) + 1) for r in per_channel]
+    bodies = [r.buffers()[2] for r in per_channel]
+
+    pos = 0
+    b = RecordBuilder()
+
+    def emit(data: bytes) -> None:
+        nonlocal pos
+        out.write(data)
+        pos += len(data)
+
+    emit(MCAP0_MAGIC)
+    Header(profile="", library=LIBRARY).write(b)
+    schemas = [Schema(id=i + 1, name=ch.schema_name, encoding="jsonschema",
+                      data=json.dumps(ch.json_schema, sort_keys=True).encode()) for i, ch in enumerate(channels)]
+    chans = [Channel(id=i + 1, topic=ch.topic, message_encoding="json", schema_id=i + 1, metadata={})
+             for i, ch in enumerate(channels)]
+    for rec in (*schemas, *chans):
+        rec.write(b)
+    emit(_flush(b))
+
+    # Blocks of samples sized so the largest channel's chunk is about chunk_bytes; within a block,
+    # one chunk per channel (chunks of different channels overlap in time, which readers merge).
+    widest = max((o[-1] for o in offsets), default=0)
+    per_block = max(1, int(chunk_bytes * n // widest) if widest else n)
+    chunk_indexes = []
+    for a in range(0, n, per_block):
+        z = min(a + per_block, n)
+        t = log_time_ns[a:z]
+        for cid, (off, body) in enumerate(zip(offsets, bodies), start=1):
+            raw = memoryview(body)[off[a]:off[z]].tobytes()
+            chunk = Chunk(compression="lz4", data=lz4.frame.compress(raw), message_start_time=int(t.min()),
+                          message_end_time=int(t.max()), uncompressed_crc=zlib.crc32(raw), uncompressed_size=len(raw))
+            chunk_start = pos
+            chunk.write(b)
+            emit(_flush(b))
+            chunk_length = pos - chunk_start
+            index_start = pos
+            emit(_message_index(cid, t, off[a:z] - off[a]))
+            chunk_indexes.append(ChunkIndex(
+                message_start_time=chunk.message_start_time, message_end_time=chunk.message_end_time,
+                chunk_start_offset=chunk_start, chunk_length=chunk_length, message_index_offsets={cid: index_start},
+                message_index_length=pos - index_start, compression="lz4", compressed_size=len(chunk.data),
+                uncompressed_size=len(raw)))
+
+    metadata_indexes = []
+    for name in sorted(metadata):
+        rec_start = pos
+        Metadata(name=name, metadata=dict(sorted(metadata[name].items()))).write(b)
+        emit(_flush(b))
+        metadata_indexes.append(MetadataIndex(offset=rec_start, length=pos - rec_start, name=name))
+    DataEnd(data_section_crc=0).write(b)
+    emit(_flush(b))
+
+    summary_start = pos
+    s = RecordBuilder()
+    offsets_out = []
+
+    def group(opcode: int, recs: list) -> None:
+        begin = s.count
+        for r in recs:
+            r.write(s)
+        offsets_out.append(SummaryOffset(group_opcode=opcode, group_start=summary_start + begin,
+                                         group_length=s.count - begin))
+
+    stats = Statistics(attachment_count=0, channel_count=n_ch, channel_message_counts={i + 1: n for i in range(n_ch)},
+                       chunk_count=len(chunk_indexes), message_count=n * n_ch,
+                       message_start_time=int(log_time_ns.min()) if n else 0,
+                       message_end_time=int(log_time_ns.max()) if n else 0,
+                       metadata_count=len(metadata_indexes), schema_count=len(schemas))
+    group(Opcode.SCHEMA, schemas)
+    group(Opcode.CHANNEL, chans)
+    group(Opcode.STATISTICS, [stats])
+    group(Opcode.CHUNK_INDEX, chunk_indexes)
+    group(Opcode.METADATA_INDEX, metadata_indexes)
+    summary_offset_start = summary_start + s.count
+    for o in offsets_out:
+        o.write(s)
+    summary = s.end()
+    crc = zlib.crc32(summary)
+    crc = zlib.crc32(np.array([int(Opcode.FOOTER)], "u1").tobytes()
+                     + np.array([20, summary_start, summary_offset_start], "<u8").tobytes(), crc)
+    emit(summary)
+    Footer(summary_start=summary_start, summary_offset_start=summary_offset_start, summary_crc=crc).write(b)
+    emit(_flush(b))
+    emit(MCAP0_MAGIC)

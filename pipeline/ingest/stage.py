@@ -1,0 +1,184 @@
+"""The ingest stage: one raw capture -> one run per kept logging segment.
+
+``ingest_capture`` is the pure part (bytes + config -> tables + reports);
+``ingest_recording`` reads the file, resolves the rig TOML layers and writes.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from pipeline.config import RigConfig, config_for_recording
+from pipeline.errors import IngestError
+from pipeline.ingest.convert import (ZeroEstimate, estimate_zero, range_violations, saturation,
+                                     seconds_from_start, to_signals)
+from pipeline.ingest.parse import ParsedFile, Quarantined, Segment, parse_capture, reframe
+from pipeline.ingest.timing import first_backward, lone_out_of_order, timing_stats, unwrap
+from pipeline.runs import RunPaths, run_paths
+
+MIN_SEGMENT_ROWS = 2          # a segment with fewer kept rows has no timing and is flagged, not a run
+
+
+@dataclass
+class RunData:
+    name: str
+    signals: pd.DataFrame
+    report: dict
+
+
+@dataclass
+class IngestResult:
+    runs: list[RunPaths]
+    report: dict
+    tables: dict[str, pd.DataFrame] = field(default_factory=dict, repr=False)   # run name -> signals
+
+
+def _quarantine(seg: Segment, bad: np.ndarray, reasons) -> None:
+    if bad.any():
+        for i in np.flatnonzero(bad):
+            seg.quarantined.append(Quarantined(int(seg.line[i]), reasons(i), ""))
+        seg.select(~bad)
+
+
+def _order_time(seg: Segment, cfg: RigConfig) -> tuple[np.ndarray, int, int | None]:
+    """Range rules, lone out-of-order samples; the unwrapped time, wraps, and the first backward row."""
+    bad, reason = range_violations(seg.values, cfg)
+    _quarantine(seg, bad, lambda i: str(reason[i]))
+    t, wraps = unwrap(seg.values["t_raw"], cfg.columns.time_unit)
+    lone = lone_out_of_order(t)
+    _quarantine(seg, lone, lambda i: "time out of order (a lone sample between its neighbours' times)")
+    t = t[~lone]
+    return t, wraps, first_backward(t)
+
+
+def clean_segment(seg: Segment, cfg: RigConfig, source: str) -> tuple[np.ndarray, int]:
+    """Make a segment's time non-decreasing or refuse; phase-shifted rows are re-framed first."""
+    before = (seg.line.copy(), dict(seg.values), list(seg.quarantined))
+    t, wraps, back = _order_time(seg, cfg)
+    if back is None:
+        return t, wraps
+    at_line, t_from, t_to = int(seg.line[back]), t[back - 1], t[back]
+    line, values, quarantined, leftover = reframe(seg)
+    trial = Segment(seg.index, seg.header_line, seg.layout, seg.width, seg.data_lines, line, values,
+                    quarantined, list(seg.notes))
+    t2, wraps2, back2 = _order_time(trial, cfg)
+    if back2 is None and len(trial.line) >= 0.9 * len(before[0]):
+        seg.line, seg.values, seg.quarantined = trial.line, trial.values, trial.quarantined
+        seg.notes.append(f"phase-shifted rows: fields re-framed into {seg.width}-field records "
+                         f"({len(trial.line)} records, {leftover} trailing field(s) left over)")
+        return t2, wraps2
+    unit = cfg.columns.time_unit
+    raise IngestError(f"time goes back from {t_from:g} to {t_to:g} {unit} without a repeated header "
+                      f"(not a board reset, not a counter wrap); expected non-decreasing time",
+                      path=source, line=at_line)
+
+
+def _refuse_if_unreadable(parsed: ParsedFile, quarantined: list[Quarantined], kept: int, cfg: RigConfig,
+                          source: str) -> None:
+    read = kept + len(quarantined)
+    limit = cfg.ingest.max_bad_fraction
+    if read and len(quarantined) / read > limit:
+        first = quarantined[0]
+        binary = sum(q.reason.startswith("binary") for q in quarantined)
+        what = "binary or non-UTF-8 content" if binary > len(quarantined) / 2 else "too many unreadable rows"
+        raise IngestError(f"{what}: {len(quarantined)} of {read} data lines unreadable "
+                          f"({100 * len(quarantined) / read:.1f}% > ingest.max_bad_fraction = {limit:g}); "
+                          f"first at line {first.line}: {first.reason}", path=source, line=first.line)
+
+
+def ingest_capture(data: bytes, cfg: RigConfig, source: str, stem: str) -> tuple[list[RunData], dict]:
+    """Bytes of one capture -> the signals table and report of each kept segment, and the file report."""
+    parsed = parse_capture(data, cfg.columns, source)
+    times = [clean_segment(seg, cfg, source) for seg in parsed.segments]
+    quarantined = sorted([*parsed.quarantined, *(q for s in parsed.segments for q in s.quarantined)],
+                         key=lambda q: q.line)
+    kept_rows = sum(len(s.line) for s in parsed.segments)
+    _refuse_if_unreadable(parsed, quarantined, kept_rows, cfg, source)
+    keep = [s for s in parsed.segments if len(s.line) >= MIN_SEGMENT_ROWS]
+    if not keep:
+        raise IngestError(f"no segment with at least {MIN_SEGMENT_ROWS} readable rows", path=source)
+    names = {s.index: stem if len(keep) == 1 else f"{stem}-seg{k + 1}" for k, s in enumerate(keep)}
+    runs, seg_reports = [], []
+    for seg, (t, wraps) in zip(parsed.segments, times):
+        entry = {"index": seg.index, "header_line": seg.header_line, "rows_kept": int(len(seg.line)),
+                 "rows_quarantined": len(seg.quarantined), "columns": sorted(seg.layout),
+                 "notes": seg.notes, "run": names.get(seg.index)}
+        if seg.index not in names:
+            entry["flagged"] = f"fewer than {MIN_SEGMENT_ROWS} readable rows: not made a run"
+            seg_reports.append(entry)
+            continue
+        t_s = seconds_from_start(t, cfg.columns.time_unit)
+        zero: ZeroEstimate | None = estimate_zero(seg.values, cfg, source) if "adc" in seg.values else None
+        df = to_signals(seg.values, seg.line, t_s, seg.index, cfg, zero)
+        entry |= {"first_line": int(seg.line[0]), "last_line": int(seg.line[-1]), "counter_wraps": wraps,
+                  "timing": timing_stats(t, cfg.columns.time_unit, seg.line, cfg.controller.period_s),
+                  "current_zero": zero.to_dict() if zero else None,
+                  "adc_saturation": saturation(seg.values["adc"], cfg.current_sensor.adc_steps) if zero else None,
+                  "not_logged": [c for c in ("adc", "dir") if c not in seg.layout]}
+        seg_reports.append(entry)
+        runs.append(RunData(names[seg.index], df, {}))
+    defects = list(parsed.notes)
+    for entry in seg_reports:
+        defects += [f"segment {entry['index']}: {n}" for n in entry["notes"]]
+        defects += [f"segment {entry['index']}: {d}" for d in entry.get("timing", {}).get("defects", [])]
+    if len(parsed.segments) > 1:
+        defects.append(f"{len(parsed.segments) - 1} board reset(s): repeated header at lines {parsed.header_lines[1:]}")
+    report = {
+        "recording": source,
+        "sha256": hashlib.sha256(data).hexdigest(),
+        "bytes": len(data),
+        "config": cfg.to_dict(),
+        "sources": cfg.sources,
+        "lines": {"total": parsed.lines_total, "blank": parsed.blank_lines, "comment": parsed.comment_lines,
+                  "header": parsed.header_lines},
+        "rows": {"read": kept_rows + len(quarantined), "kept": sum(len(r.signals) for r in runs),
+                 "quarantined": len(quarantined)},
+        "quarantined": [q.to_dict() for q in quarantined],
+        "defects": defects,
+        "segments": seg_reports,
+        "runs": [r.name for r in runs],
+    }
+    for r in runs:
+        r.report = report | {"run": r.name}
+    return runs, report
+
+
+def summary_text(report: dict) -> str:
+    """The short console summary of one recording."""
+    rows = report["rows"]
+    lines = [f"{report['recording']}: {rows['kept']} rows kept, {rows['quarantined']} quarantined "
+             f"of {rows['read']} -> {', '.join(report['runs'])}"]
+    for seg in report["segments"]:
+        timing = seg.get("timing") or {}
+        if timing.get("median_period_s") is not None:
+            lines.append(f"  segment {seg['index']}: median period {timing['median_period_s']:.6g} s, "
+                         f"jitter {timing['jitter_std_s']:.3g} s, {timing['gaps']} gaps")
+        if seg.get("current_zero") and seg["current_zero"]["method"] != "configured":
+            z = seg["current_zero"]
+            lines.append(f"  segment {seg['index']}: zero_v auto = {z['zero_v']:.4f} V "
+                         f"(spread {z['spread_v']:.4f} V, {z['samples']} samples, {z['method']})")
+    lines += [f"  defect: {d}" for d in report["defects"]]
+    return "\n".join(lines)
+
+
+def ingest_recording(csv_path: Path, processed: Path, *, config: RigConfig | None = None) -> IngestResult:
+    """Read one raw CSV (never modified), resolve its rig TOML layers, write one run per kept segment."""
+    from pipeline.ingest.write import write_run
+    csv_path = Path(csv_path)
+    cfg = config if config is not None else config_for_recording(csv_path)
+    try:
+        data = csv_path.read_bytes()
+    except OSError as err:
+        raise IngestError(f"cannot read the recording: {err.strerror}", path=csv_path) from None
+    runs, report = ingest_capture(data, cfg, str(csv_path), csv_path.stem)
+    out = []
+    for run in runs:
+        paths = run_paths(Path(processed), run.name)
+        write_run(paths, run.signals, run.report, cfg)
+        out.append(paths)
+    return IngestResult(runs=out, report=report, tables={r.name: r.signals for r in runs})

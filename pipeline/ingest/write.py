@@ -1,0 +1,74 @@
+"""The edge of the ingest stage: Parquet, MCAP, reports and rig.json on disk, all atomic and deterministic."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pyarrow.parquet as pq
+
+from pipeline.config import RigConfig
+from pipeline.io.atomic import atomic_path, write_json
+from pipeline.runs import RunPaths
+from pipeline.schemas import load_schema
+
+# MCAP channel per signal group; a group whose columns a sketch does not log is left out
+CHANNEL_GROUPS = {
+    "/encoder": ("t_s", "counts", "theta_rad"),
+    "/current": ("adc", "current_v", "current_a"),
+    "/command": ("dir", "mode"),
+}
+
+
+def signals_table(df: pd.DataFrame, where: str):
+    """The checked Arrow table with units in field metadata (schemas/signals.json)."""
+    return load_schema("signals").to_arrow(df, where)
+
+
+def mcap_channels(df: pd.DataFrame):
+    from pipeline.ingest.mcap_bulk import ChannelBatch
+    schema = load_schema("signals")
+    out = []
+    for topic, names in CHANNEL_GROUPS.items():
+        present = [c for c in names if c in df.columns]
+        if not present or (topic != "/encoder" and len(present) < len(names)):
+            continue
+        title = "pdr." + topic.strip("/")
+        out.append(ChannelBatch(topic=topic, schema_name=title, json_schema=schema.json_schema(present, title=title),
+                                fields={c: df[c].to_numpy() for c in present}))
+    return out
+
+
+def log_time_ns(t_s: np.ndarray) -> np.ndarray:
+    """MCAP log_time: the sample time since the segment's first sample, in ns."""
+    return np.round(np.asarray(t_s, dtype=np.float64) * 1e9).astype(np.uint64)
+
+
+def mcap_metadata(cfg: RigConfig, report: dict) -> dict[str, dict[str, str]]:
+    return {
+        "rig_config": {"config": json.dumps(cfg.to_dict(), sort_keys=True),
+                       "sources": json.dumps(cfg.sources, sort_keys=True)},
+        "recording": {"source": str(report["recording"]), "sha256": report["sha256"], "run": report["run"]},
+    }
+
+
+def remove_stale_temporaries(root: Path) -> None:
+    """Temporary files a killed run left behind (never the outputs themselves)."""
+    if root.is_dir():
+        for tmp in root.glob(".*.tmp"):
+            tmp.unlink(missing_ok=True)
+
+
+def write_run(paths: RunPaths, df: pd.DataFrame, report: dict, cfg: RigConfig) -> None:
+    """All ingest outputs of one run; each file replaced in one rename, the report last."""
+    from pipeline.ingest.mcap_bulk import write_mcap
+    remove_stale_temporaries(paths.root)
+    table = signals_table(df, str(paths.signals))
+    with atomic_path(paths.signals) as tmp:
+        pq.write_table(table, tmp, compression="zstd")
+    with atomic_path(paths.mcap) as tmp, open(tmp, "wb") as fh:
+        write_mcap(fh, mcap_channels(df), log_time_ns(df["t_s"].to_numpy()), mcap_metadata(cfg, report))
+    write_json(paths.rig_config, {"config": cfg.to_dict(), "sources": cfg.sources})
+    write_json(paths.ingest_report, report)
