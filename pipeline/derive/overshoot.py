@@ -20,10 +20,8 @@ import pandas as pd
 
 from pipeline.derive.phases import reversal_indices
 from pipeline.derive.stats import describe
-from pipeline.derive.velocity import local_polyfit
 
 TURN_FIT_HALF = 2            # samples each side of the extreme sample in the vertex fit
-CURRENT_SMOOTH_WINDOW = 9    # samples of the local quadratic that smooths the current before its zero crossing
 DRIFT_LIMIT_RAD = 0.03       # rad: a trend in turning angle larger than this over the run is flagged (3 % of the guard)
 
 OVERSHOOT_COLUMNS = ["crossing", "direction", "trigger_sample", "trigger_t_s", "trigger_theta_rad",
@@ -66,10 +64,13 @@ def _zero_crossing(t: np.ndarray, y: np.ndarray, k: int, end: int, d: int) -> fl
 
 def overshoot_table(t: np.ndarray, theta: np.ndarray, omega: np.ndarray, current: np.ndarray | None,
                     dirs: np.ndarray, guard_rad: float) -> pd.DataFrame:
-    """One row per command reversal (schemas/overshoot.json); ``direction`` +1 = upper guard, -1 = lower."""
+    """One row per command reversal (schemas/overshoot.json); ``direction`` +1 = upper guard, -1 = lower.
+
+    ``current`` should be de-noised (``smooth_by_phase``): its zero crossing is
+    located by linear interpolation, which raw ADC noise would make jump.
+    """
     rev = reversal_indices(dirs)
     n = len(t)
-    smooth = local_polyfit(t, current, CURRENT_SMOOTH_WINDOW, 2) if current is not None else None
     rows = []
     for j, k in enumerate(rev):
         k = int(k)
@@ -79,7 +80,7 @@ def overshoot_table(t: np.ndarray, theta: np.ndarray, omega: np.ndarray, current
         # the turn was seen when the angle came back after its extreme within this phase
         turned = i < end and d * (theta[i] - theta[end]) > 0
         tt, th = turning_point(t, theta, i, k - 1, end) if turned else (np.nan, np.nan)
-        crossing_t = _zero_crossing(t, smooth, k, end, d) if smooth is not None else np.nan
+        crossing_t = _zero_crossing(t, current, k, end, d) if current is not None else np.nan
         rows.append({
             "crossing": j, "direction": d, "trigger_sample": k, "trigger_t_s": float(t[k]),
             "trigger_theta_rad": float(theta[k]), "trigger_excess_rad": float(d * theta[k] - guard_rad),

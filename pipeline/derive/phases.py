@@ -18,22 +18,59 @@ MODE_OF_DIR = {1: 1, -1: 2, 0: 0}      # schemas/signals.json: 1 = q1, 2 = q2, 0
 
 
 def infer_dir(t_s: np.ndarray, theta_rad: np.ndarray, guard_rad: float) -> np.ndarray:
-    """The command the sketch must have applied at each sample, from the guards (int8 -1/1).
+    """The command the sketch must have applied at each sample, from the guards (int8 -1/0/1).
 
     The run starts in q1 (the sketch's initial mode, MODEL.md) unless the data
-    say otherwise: when the first guard the angle reaches is the lower one, the
-    motor was driving down, so the run starts in q2.
+    say otherwise: when the first guard the angle reaches is the lower one (or,
+    no guard being reached, the first motion is downwards) the motor was
+    driving down; and when the pinion sits still for a while before it starts
+    to move, the motor was off (0) until the onset found by ``motor_onset``.
     """
+    t = np.asarray(t_s, dtype=float)
     theta = np.asarray(theta_rad, dtype=float)
-    if len(np.asarray(t_s)) != len(theta):
+    if len(t) != len(theta):
         raise ValueError("infer_dir: t_s and theta_rad must have the same length")
     out = np.empty(len(theta), dtype=np.int8)
+    if len(theta) == 0:
+        return out
+    moved = np.flatnonzero(theta != theta[0])
     beyond = np.flatnonzero(np.abs(theta) >= guard_rad)
-    d = -1 if len(beyond) and theta[beyond[0]] <= -guard_rad else 1
-    for k, th in enumerate(theta):
-        d = next_dir(d, float(th), guard_rad)
+    if len(beyond):
+        d = -1 if theta[beyond[0]] <= -guard_rad else 1
+    else:
+        d = -1 if len(moved) and theta[moved[0]] < theta[0] else 1
+    onset = motor_onset(t, theta)
+    out[:onset] = 0
+    for k in range(onset, len(theta)):
+        d = next_dir(d, float(theta[k]), guard_rad)
         out[k] = d
     return out
+
+
+ONSET_FIT_S = 0.3       # s after the first motion over which theta - theta0 ~ c (t - t_on)^3 holds
+
+
+def motor_onset(t: np.ndarray, theta: np.ndarray) -> int:
+    """First sample of a recording at which the motor was on, when it starts at rest.
+
+    From rest the current ramps as u/La t, so the angle grows as c (t - t_on)^3
+    for the first few tenths of a second (back-EMF and springs are still
+    negligible): one count shows only ~2 samples after the command.  The cube
+    root of the angle is therefore linear in time; its zero is the onset.  A
+    recording already moving at its start (or never moving) has onset 0.
+    """
+    moved = np.flatnonzero(theta != theta[0])
+    if len(moved) == 0 or moved[0] <= 2:
+        return 0
+    m = int(moved[0])
+    sel = np.flatnonzero((np.arange(len(t)) >= m) & (t <= t[m] + ONSET_FIT_S))
+    if len(sel) >= 3:
+        y = np.cbrt(theta[sel] - theta[0])
+        slope, icpt = np.polyfit(t[sel], y, 1)
+        if slope * y[-1] > 0:
+            t_on = -icpt / slope
+            return int(np.clip(np.argmin(np.abs(t - t_on)), 0, m - 1))
+    return m - 1
 
 
 def phase_bounds(dirs: np.ndarray) -> np.ndarray:

@@ -20,9 +20,10 @@ from pipeline.config import RigConfig
 from pipeline.derive.cycles import cycle_summary, cycle_table
 from pipeline.derive.energy import energy_terms
 from pipeline.derive.overshoot import overshoot_summary, overshoot_table
-from pipeline.derive.phases import MODE_OF_DIR, infer_dir, phase_table, reversal_indices
+from pipeline.derive.energy import paper_energy_j
+from pipeline.derive.phases import MODE_OF_DIR, infer_dir, phase_bounds, phase_table, reversal_indices
 from pipeline.derive.velocity import (DEFAULT_ESTIMATOR, SAVGOL_ORDER, SAVGOL_WINDOW, backward_difference,
-                                      savgol_velocity)
+                                      savgol_velocity, smooth_by_phase)
 from pipeline.derive.stats import describe
 from pipeline.errors import PdrError
 from pipeline.runs import RunPaths, load_config, load_signals
@@ -31,6 +32,12 @@ VELOCITY_NOTE = (f"omega_rad_s = omega_savgol_rad_s: slope of a local cubic thro
                  "real time axis; centred, so no half-sample lag, and it averages encoder quantisation "
                  "(RMS error vs true velocity on synthetic paper-rig recordings: 0.004 rad/s, against "
                  "0.064 rad/s for the paper's backward difference)")
+# the logged current is de-noised within each phase before it is rectified (|I|, paper energy) or squared
+# (copper loss), which would otherwise turn sensor noise into energy: cubic over 15 samples (0.75 s)
+CURRENT_WINDOW, CURRENT_ORDER = 15, 3
+CURRENT_NOTE = ("energy, peak and trigger currents use current_smooth_a: the logged current smoothed within each phase "
+                f"(cubic over {CURRENT_WINDOW} samples, never across a command change), because |I| and I^2 turn "
+                "sensor noise into energy; energy_paper_logged_current_j is the paper's formula on the raw samples")
 # a run whose angle spans less than this many encoder counts never moved
 STALL_COUNTS = 3
 
@@ -74,13 +81,15 @@ def derive_tables(signals: pd.DataFrame, cfg: RigConfig) -> DerivedTables:
     dirs = signals["dir"].to_numpy().astype(np.int8) if dir_logged else infer_dir(t, theta, guard)
     kin = {"t_s": t, "theta_rad": theta, "omega_rad_s": omega, "omega_backward_rad_s": omega_b,
            "omega_savgol_rad_s": omega_sg}
+    smooth = None
     if current is not None:
-        kin["current_a"] = current
+        smooth = smooth_by_phase(t, current, phase_bounds(dirs), CURRENT_WINDOW, CURRENT_ORDER)
+        kin |= {"current_a": current, "current_smooth_a": smooth}
     kin |= {"dir": dirs, "dir_inferred": np.full(len(t), not dir_logged)}
     kinematics = pd.DataFrame(kin)
 
-    phases = phase_table(t, theta, omega, current, dirs, guard)
-    over = overshoot_table(t, theta, omega, current, dirs, guard)
+    phases = phase_table(t, theta, omega, smooth, dirs, guard)
+    over = overshoot_table(t, theta, omega, smooth, dirs, guard)
     cycles = cycle_table(over)
 
     count_rad = 2 * math.pi / cfg.encoder.counts_per_rev
@@ -106,7 +115,8 @@ def derive_tables(signals: pd.DataFrame, cfg: RigConfig) -> DerivedTables:
         not_computed["energy"] = "no current column: energy not computed"
     else:
         u = dirs.astype(float) * spec.v_drive
-        energy = energy_terms(t, current, omega, theta, u, spec, v_rms=spec.v_drive, period_s=spec.period_s)
+        energy = energy_terms(t, smooth, omega, theta, u, spec, v_rms=spec.v_drive, period_s=spec.period_s)
+        energy["energy_paper_logged_current_j"] = paper_energy_j(current, spec.v_drive, spec.period_s)
         if spec.Td:
             notes.append("input energy takes the command as applied at its sample (loop_delay not shifted)")
 
@@ -131,6 +141,7 @@ def derive_tables(signals: pd.DataFrame, cfg: RigConfig) -> DerivedTables:
         "overshoot": overshoot_summary(over, guard, spec.period_s, dir_logged),
         "cycles": cycle_summary(cycles),
         "energy": energy,
+        "energy_current": CURRENT_NOTE if current is not None else None,
         "not_computed": not_computed,
         "notes": notes,
     }

@@ -70,3 +70,22 @@ ESTIMATORS = {
     "backward": backward_difference,
     "savgol": savgol_velocity,
 }
+
+
+def smooth_by_phase(t: np.ndarray, y: np.ndarray, starts: np.ndarray, window: int, order: int) -> np.ndarray:
+    """Local polynomial smoothing that never fits across a command change.
+
+    Within a phase the input voltage is constant, so the current is smooth; at
+    the sample that reverses the command its slope jumps (dI/dt = u/La - ...).
+    Each phase is fitted on its own samples plus the sample that ends it (the
+    kink is at that sample, the current itself is continuous there); the
+    phase's own samples take that fit.
+    """
+    t = np.asarray(t, dtype=float)
+    y = np.asarray(y, dtype=float)
+    out = np.empty(len(y))
+    bounds = list(np.asarray(starts, dtype=np.int64)) + [len(y)]
+    for a, b in zip(bounds[:-1], bounds[1:]):
+        hi = min(b + 1, len(y))
+        out[a:b] = local_polyfit(t[a:hi], y[a:hi], window, order)[: b - a]
+    return out

@@ -41,13 +41,16 @@ def make_synthetic(duration: float = 24.95, seed: int = 0, *, cfg: RigConfig | N
     t_true = t + rng.uniform(0.0, 0.001, n) * (jitter_ms > 0)
     cpr = cfg.encoder.counts_per_rev
     r = simulate(spec, t_true)
-    for _ in range(5):
+    for _ in range(50):
         # the sketch decides on counts, not on the true angle: replay until its decisions are self-consistent
+        # (each pass fixes at least the earliest decision that differed)
         counts = np.round(r.theta * cpr / (2 * np.pi)).astype(np.int64)
         decided = sketch_decisions(2 * np.pi * counts / cpr, spec.guard_rad)
         if np.array_equal(decided, r.dir):
             break
         r = simulate(spec, t_true, dir_log=decided, closed_loop=False)
+    else:
+        raise RuntimeError("synthetic recording: the sketch's decisions did not settle")
     cs = cfg.current_sensor
     v = cs.zero_v + cs.sensitivity_v_per_a * r.current_measured + rng.normal(0.0, noise_v, n)
     adc = np.clip(np.round(v / cs.adc_vref * cs.adc_steps), 0, cs.adc_steps - 1).astype(np.int32)
