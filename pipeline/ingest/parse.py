@@ -173,7 +173,8 @@ def parse_line(text: str, layout: dict[str, int], width: int) -> dict[str, float
     """Parse one trimmed line: the values by logical column, or the reason it cannot be read."""
     fields = [f.strip(TRIM) for f in text.split(",")]
     if len(fields) != width:
-        return f"expected {width} fields, got {len(fields)}"
+        kind = "text, not a data line: " if re.search("[A-Za-z]{3}", text) else ""
+        return f"{kind}expected {width} fields, got {len(fields)}"
     out: dict[str, float | int] = {}
     for logical, j in layout.items():
         raw = fields[j]
@@ -244,16 +245,19 @@ def parse_capture(data: bytes, columns: ColumnsConfig, source: str) -> ParsedFil
     blank = length == 0
     comment = pc.starts_with(text, "#").to_numpy(zero_copy_only=False)
     wordy = pc.match_substring_regex(text, "[A-Za-z_(]").to_numpy(zero_copy_only=False) & ~comment & ~blank
-    header_idx, stray = [], []
-    for i in np.flatnonzero(wordy):
-        names = header_fields(text[int(i)].as_py())
-        if columns.t_ms and columns.t_ms in names:
-            header_idx.append(int(i))
-        else:
-            stray.append(int(i))
-    quarantined = list(bad_bytes) + [_q(i + 1, "not a data line (text that is not the header)", text[i].as_py())
-                                     for i in stray]
-    data_mask = ~blank & ~comment & ~wordy
+    header_idx = [int(i) for i in np.flatnonzero(wordy)
+                  if columns.t_ms and columns.t_ms in header_fields(text[int(i)].as_py())]
+    content = np.flatnonzero(~blank & ~comment)
+    if not header_idx and len(content):
+        first = header_fields(text[int(content[0])].as_py())
+        if len(first) >= 2 and not any(re.fullmatch(TIME_RE, f) for f in first):
+            raise IngestError(f"no recognisable columns: the header names {first}, expected '{columns.t_ms}' "
+                              f"(columns.t_ms) and '{columns.counts}' (columns.counts); set [columns] in the "
+                              f"rig TOML", path=source, line=int(content[0]) + 1)
+    quarantined = list(bad_bytes)
+    is_header = np.zeros(n, dtype=bool)
+    is_header[header_idx] = True
+    data_mask = ~blank & ~comment & ~is_header
     bounds = [0, *header_idx, n]
     segments: list[Segment] = []
     first_layout = None
@@ -286,6 +290,9 @@ def parse_capture(data: bytes, columns: ColumnsConfig, source: str) -> ParsedFil
                       width=width, data_lines=len(idx), line=line, values=values, quarantined=q, notes=seg_notes,
                       raw_text=seg_text, raw_lines=idx + 1)
         segments.append(seg)
+    if not segments and bad_bytes:
+        raise IngestError(f"binary or non-UTF-8 content: {len(bad_bytes)} of {n} lines, none readable as text; "
+                          f"expected a UTF-8 CSV capture", path=source, line=bad_bytes[0].line)
     if not segments:
         raise IngestError("no recognisable columns: no data rows of numbers found", path=source)
     return ParsedFile(segments=segments, lines_total=n, blank_lines=int(blank.sum()),

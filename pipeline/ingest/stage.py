@@ -126,8 +126,9 @@ def ingest_capture(data: bytes, cfg: RigConfig, source: str, stem: str) -> tuple
     for entry in seg_reports:
         defects += [f"segment {entry['index']}: {n}" for n in entry["notes"]]
         defects += [f"segment {entry['index']}: {d}" for d in entry.get("timing", {}).get("defects", [])]
-    if len(parsed.segments) > 1:
-        defects.append(f"{len(parsed.segments) - 1} board reset(s): repeated header at lines {parsed.header_lines[1:]}")
+    if len(parsed.header_lines) > 1:
+        defects.append(f"{len(parsed.header_lines) - 1} board reset(s): repeated header at lines "
+                       f"{parsed.header_lines[1:]}")
     report = {
         "recording": source,
         "sha256": hashlib.sha256(data).hexdigest(),
