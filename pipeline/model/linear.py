@@ -41,11 +41,11 @@ class StepCache:
     def __init__(self, A: np.ndarray, B: np.ndarray) -> None:
         self.A, self.B = A, B
         self._cache: dict[float, tuple[float, ...]] = {}
-        self._raw: dict[float, tuple[float, ...]] = {}     # exact float -> entry, skips rounding on hits
+        self.raw: dict[float, tuple[float, ...]] = {}     # exact float -> entry, skips rounding on hits
 
     def __call__(self, h: float) -> tuple[float, ...]:
         """(P00, P01, P02, P10, ..., P22, G0, G1, G2) for length ``h``."""
-        hit = self._raw.get(h)
+        hit = self.raw.get(h)
         if hit is None:
             key = step_key(h)
             hit = self._cache.get(key)
@@ -53,7 +53,7 @@ class StepCache:
                 Phi, Gam = step_matrices(self.A, self.B, key)
                 hit = tuple(float(v) for v in (*Phi.ravel(), *Gam))
                 self._cache[key] = hit
-            self._raw[h] = hit
+            self.raw[h] = hit
         return hit
 
 

@@ -11,15 +11,21 @@ With ``Tc`` and ``gap`` the plant is piecewise affine, x' = A x + c, in regimes:
 
 Within a regime the exact solution is modal, ``x(tau) = Re V (e^{L tau} y0 +
 phi(L, tau) d)`` with ``y0 = V^-1 x``, ``d = V^-1 c`` and ``phi = (e^{L tau} - 1)/L``
-(``tau`` for a zero eigenvalue, which the dead zone has).  Every switching
+(``tau`` for the zero eigenvalue the dead zone has).  A step of a regime is
+``x+ = Phi x + Psi c`` (Phi, Psi cached per step length).  Every switching
 surface is affine in the state (theta = +/-gap/2, w = 0, net torque = +/-Tc,
-theta = +/-guard), so each event function is a short sum of exponentials in
-tau: it is scanned on a grid finer than the plant's fastest oscillation and
-the first sign change is located with Brent's method on the closed form, to
-~1e-15 s.  In stick the current is a single exponential, so break-away is
-solved in closed form.  States are snapped onto the surface they reached
-(w = 0 exactly, delta = +/-R gap/2 exactly), so a stuck pinion stays exactly
-still and a regime never re-fires at its own entry point.
+theta = +/-guard), so each event function g = a.x + b is a sum of three
+exponentials in tau.  A step is accepted when g stays >= 0 at its end and shows
+no dip (g' < 0 at the start and > 0 at the end with g(min) < 0); steps are
+never longer than a fraction of the plant's fastest period, so g has at most
+one extremum inside.  Otherwise the first root is found by safeguarded Newton
+on the closed form (to ~1e-15 s).  In stick the current is a single
+exponential, so break-away is solved in closed form.  States are snapped onto
+the surface they reached (w = 0 exactly, delta = +/-R gap/2 exactly), so a
+stuck pinion stays exactly still and a regime never re-fires at its entry.
+
+Everything per step is plain Python float arithmetic: numpy's per-call
+overhead would dominate 3x3 work (see ``benchmarks/bench_model.py``).
 """
 
 from __future__ import annotations
@@ -28,50 +34,127 @@ import cmath
 import math
 
 import numpy as np
-from scipy.optimize import brentq
 
 from pipeline.model.effects import PlantSpec
+from pipeline.model.linear import step_key
 
-# Longest grid step for the sign scan [s]; the plant's fastest mode (~3 rad/s for
-# Table I) turns by < 0.05 rad over it, so a surface is not crossed twice unseen.
-GRID_DT = 0.0125
 MAX_ZERO_LENGTH_EVENTS = 50
+State = tuple[float, float, float]
+
+
+def _cexpm1(z: complex) -> complex:
+    """e^z - 1 without cancellation for small |z| (cmath has no expm1)."""
+    x, y = z.real, z.imag
+    s = math.sin(0.5 * y)
+    return complex(math.expm1(x) * math.cos(y) - 2.0 * s * s, math.exp(x) * math.sin(y))
 
 
 class Modal:
-    """Exact affine flow x' = A x + c through the eigendecomposition of A."""
+    """Exact affine flow x' = A x + c through the eigendecomposition A = V diag(lam) V^-1."""
 
     def __init__(self, A: np.ndarray) -> None:
         lam, V = np.linalg.eig(A)
-        self.lam = lam.astype(complex)
-        self.V = V.astype(complex)
-        self.Vinv = np.linalg.inv(self.V)
+        lam = lam.astype(complex)
+        V = V.astype(complex)
+        Vinv = np.linalg.inv(V)
         scale = max(1.0, float(np.max(np.abs(lam))))
-        self.zero = np.abs(self.lam) < 1e-12 * scale
-        self.lam_safe = np.where(self.zero, 1.0, self.lam)
+        zero = np.abs(lam) < 1e-12 * scale
+        self.lam_np, self.V_np, self.Vinv_np, self.zero_np = lam, V, Vinv, zero
+        self.lam = [complex(v) for v in lam]
+        self.zero = [bool(v) for v in zero]
+        self.V = [[complex(v) for v in row] for row in V]
+        self.Vinv = [[complex(v) for v in row] for row in Vinv]
+        self.fastest = float(np.max(np.abs(lam)))
+        self._steps: dict[float, tuple[tuple[float, ...], tuple[float, ...]]] = {}
+        self.raw: dict[float, tuple[tuple[float, ...], tuple[float, ...]]] = {}   # exact float -> entry
+        self._requests: set[float] = set()
 
-    def coefficients(self, x: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return self.Vinv @ x, self.Vinv @ c
+    def seen(self, L: float) -> bool:
+        """True from the second request of a length on: only repeated lengths earn cached matrices."""
+        key = step_key(L)
+        if key in self._steps or key in self._requests:
+            return True
+        self._requests.add(key)
+        return False
 
-    def states(self, y0: np.ndarray, d: np.ndarray, taus: np.ndarray) -> np.ndarray:
-        """x(tau) for each tau, shape (len(taus), 3)."""
-        lt = np.outer(taus, self.lam)
-        phi = np.where(self.zero, taus[:, None], np.expm1(lt) / self.lam_safe)
-        return ((np.exp(lt) * y0 + phi * d) @ self.V.T).real
+    def step(self, L: float) -> tuple[tuple[float, ...], tuple[float, ...]]:
+        """Phi(L) = e^{A L} and Psi(L) = int_0^L e^{A s} ds, row-major floats, cached per length."""
+        hit = self.raw.get(L)
+        if hit is not None:
+            return hit
+        key = step_key(L)
+        hit = self._steps.get(key)
+        if hit is None:
+            lam, zero = self.lam_np, self.zero_np
+            e = np.exp(lam * key)
+            phi = np.where(zero, key, np.expm1(lam * key) / np.where(zero, 1.0, lam))
+            Phi = ((self.V_np * e) @ self.Vinv_np).real
+            Psi = ((self.V_np * phi) @ self.Vinv_np).real
+            hit = (tuple(Phi.ravel().tolist()), tuple(Psi.ravel().tolist()))
+            self._steps[key] = hit
+        self.raw[L] = hit
+        return hit
 
-    def scalar(self, a: np.ndarray, b: float, y0: np.ndarray, d: np.ndarray):
-        """tau -> a . x(tau) + b as a plain-Python closure (cheap inside Brent)."""
-        w = a @ self.V
-        terms = [(complex(w[j]), complex(self.lam[j]), complex(y0[j]), complex(d[j]), bool(self.zero[j]))
-                 for j in range(3)]
+    def coefficients(self, x: State, c: State) -> tuple[list[complex], list[complex]]:
+        Vi = self.Vinv
+        y0 = [Vi[j][0] * x[0] + Vi[j][1] * x[1] + Vi[j][2] * x[2] for j in range(3)]
+        d = [Vi[j][0] * c[0] + Vi[j][1] * c[1] + Vi[j][2] * c[2] for j in range(3)]
+        return y0, d
 
-        def f(tau: float) -> float:
-            acc = b
-            for wj, lj, yj, dj, zj in terms:
-                e = cmath.exp(lj * tau)
-                acc += (wj * (e * yj + (tau if zj else (e - 1.0) / lj) * dj)).real
-            return acc
-        return f
+    def _modes(self, y0: list[complex], d: list[complex], tau: float) -> list[complex]:
+        out = []
+        for j in range(3):
+            if self.zero[j]:
+                out.append(y0[j] + tau * d[j])
+            else:
+                lt = self.lam[j] * tau
+                out.append(cmath.exp(lt) * y0[j] + _cexpm1(lt) / self.lam[j] * d[j])
+        return out
+
+    def state(self, y0: list[complex], d: list[complex], tau: float) -> State:
+        m = self._modes(y0, d, tau)
+        V = self.V
+        return tuple((V[i][0] * m[0] + V[i][1] * m[1] + V[i][2] * m[2]).real for i in range(3))  # type: ignore[return-value]
+
+    def event_function(self, a: tuple[float, float, float], b: float, y0: list[complex], d: list[complex]):
+        """tau -> (g, dg/dtau) for g = a . x(tau) + b, in real arithmetic.
+
+        A mode with lam != 0 contributes Re(e^{lam tau} A) - Re(w d / lam) with
+        A = w (y0 + d / lam) (and Re(e^{lam tau} lam A) to g'); a conjugate pair
+        is one term counted twice; the zero mode contributes Re(w (y0 + tau d)).
+        """
+        V = self.V
+        const, slope = b, 0.0
+        terms = []
+        for j in range(3):
+            wj = a[0] * V[0][j] + a[1] * V[1][j] + a[2] * V[2][j]
+            lj = self.lam[j]
+            if self.zero[j]:
+                const += (wj * y0[j]).real
+                slope += (wj * d[j]).real
+                continue
+            if lj.imag < 0.0:
+                continue                          # the conjugate of a mode already counted
+            mult = 2.0 if lj.imag > 0.0 else 1.0
+            A = wj * (y0[j] + d[j] / lj)
+            const -= mult * (wj * d[j] / lj).real
+            B = lj * A
+            terms.append((lj.real, lj.imag, mult * A.real, mult * A.imag, mult * B.real, mult * B.imag))
+        exp, cos, sin = math.exp, math.cos, math.sin
+
+        def gd(tau: float) -> tuple[float, float]:
+            g, dg = const + slope * tau, slope
+            for lr, li, ar, ai, br, bi in terms:
+                e = exp(lr * tau)
+                if li:
+                    c, s_ = cos(li * tau), sin(li * tau)
+                    g += e * (ar * c - ai * s_)
+                    dg += e * (br * c - bi * s_)
+                else:
+                    g += e * ar
+                    dg += e * br
+            return g, dg
+        return gd
 
 
 class NonsmoothPlant:
@@ -79,7 +162,7 @@ class NonsmoothPlant:
 
     def __init__(self, spec: PlantSpec) -> None:
         p = spec.params
-        self.La, self.Ra, self.Kt, self.J, self.R = p.La, p.Ra, p.Kt, p.J, p.R
+        self.La, self.Ra, self.Ke, self.Kt, self.J, self.b, self.R = p.La, p.Ra, p.Ke, p.Kt, p.J, p.b, p.R
         self.Kd = p.R * (p.K1 + p.K2)          # N m per m of delta: R (K1 + K2), eq. (4)
         self.Tc = spec.Tc
         self.gap = spec.gap
@@ -88,18 +171,23 @@ class NonsmoothPlant:
         A_dead = A.copy()
         A_dead[1, 2] = 0.0                      # inside the play the springs exert nothing
         self.modal = {True: Modal(A), False: Modal(A_dead)}
+        # longest step with at most one extremum of any event function: < 1/2 rad of the fastest mode
+        fastest = max(m.fastest for m in self.modal.values())
+        self.max_step = min(0.06, 0.5 / fastest) if fastest > 0 else 0.06
         self.z = 1
         self.s = 1
+        self._event_cache: dict[tuple[int, int, int], list[tuple]] = {}
+        self._quick: dict[tuple, tuple | None] = {}
 
     # -- regime bookkeeping -------------------------------------------------
     def spring_torque(self, delta: float) -> float:
         return 0.0 if self.z == 0 else self.Kd * (delta - self.z * self.db)
 
-    def net_torque(self, x: np.ndarray) -> float:
+    def net_torque(self, x: State) -> float:
         """Torque that Coulomb friction has to hold at w = 0: Kt I - spring."""
         return self.Kt * x[0] - self.spring_torque(x[2])
 
-    def reset(self, x: np.ndarray) -> None:
+    def reset(self, x: State) -> None:
         """Regime of a state given from outside (the initial state)."""
         if self.gap > 0.0:
             theta = x[2] / self.R
@@ -115,8 +203,8 @@ class NonsmoothPlant:
             self.s = 0 if abs(net) <= self.Tc else (1 if net > 0 else -1)
 
     # -- propagation --------------------------------------------------------
-    def advance(self, x: np.ndarray, t0: float, t1: float, u: float, guard_mode: int = 0,
-                guard_rad: float = 0.0) -> tuple[np.ndarray, float, bool]:
+    def advance(self, x: State, t0: float, t1: float, u: float, guard_mode: int = 0,
+                guard_rad: float = 0.0) -> tuple[State, float, bool]:
         """Hold motor voltage ``u`` from t0 towards t1; stop early if the continuous guard is hit.
 
         ``guard_mode`` +1/-1 arms the guard theta = +/-guard_rad (the continuous
@@ -126,12 +214,15 @@ class NonsmoothPlant:
         zero_run = 0
         while t1 - t > 0.0:
             L = t1 - t
+            if L > self.max_step:
+                L = (t1 - t) / math.ceil((t1 - t) / self.max_step)
             if self.s == 0:
                 x, tau, event = self._stick(x, u, L)
             else:
                 x, tau, event = self._slip(x, u, L, guard_mode, guard_rad)
             if event is None:
-                return x, t1, False
+                t = t + L if L < t1 - t else t1
+                continue
             t = min(t + tau, t1)
             zero_run = zero_run + 1 if tau == 0.0 else 0
             if zero_run > MAX_ZERO_LENGTH_EVENTS:
@@ -142,26 +233,26 @@ class NonsmoothPlant:
             x = self._transition(x, kind, arg)
         return x, t1, False
 
-    def _transition(self, x: np.ndarray, kind: str, arg: int) -> np.ndarray:
-        x = x.copy()
+    def _transition(self, x: State, kind: str, arg: int) -> State:
+        I, w, dl = x
         if kind == "zone":
             # crossing into/out of the play: snap delta onto the edge it reached
             edge = self.z if self.z != 0 else arg
-            x[2] = edge * self.db
+            dl = edge * self.db
             self.z = arg
         elif kind == "vel":
-            x[1] = 0.0
-            net = self.net_torque(x)
+            w = 0.0
+            net = self.net_torque((I, w, dl))
             self.s = 0 if abs(net) <= self.Tc else (1 if net > 0 else -1)
         elif kind == "stick":
-            x[1] = 0.0
+            w = 0.0
             self.s = arg
-        return x
+        return (I, w, dl)
 
-    def _stick(self, x: np.ndarray, u: float, L: float):
+    def _stick(self, x: State, u: float, L: float):
         """w = 0, delta frozen, La dI/dt = u - Ra I: I(tau) = Iinf + (I0 - Iinf) e^{-tau Ra/La}."""
         te = self.La / self.Ra
-        i0, delta = float(x[0]), float(x[2])
+        i0, delta = x[0], x[2]
         i_inf = u / self.Ra
         spring = self.spring_torque(delta)
         best_tau, best = math.inf, None
@@ -180,76 +271,217 @@ class NonsmoothPlant:
             if tau <= L and tau < best_tau:
                 best_tau, best = tau, ("stick", sign)
         tau = L if best is None else best_tau
-        xn = np.array([i_inf + (i0 - i_inf) * math.exp(-tau / te), 0.0, delta])
-        return xn, tau, best
+        return (i_inf + (i0 - i_inf) * math.exp(-tau / te), 0.0, delta), tau, best
 
-    def _events(self, guard_mode: int, guard_rad: float) -> list[tuple[np.ndarray, float, str, int]]:
-        """Affine event functions a . x + b that stay >= 0 while the slip regime holds."""
-        ev: list[tuple[np.ndarray, float, str, int]] = []
+    def _events(self, guard_mode: int, guard_rad: float) -> list[tuple]:
+        """Affine event functions (a0, a1, a2, b, kind, arg, aR): a . x + b >= 0 while the slip regime holds.
+
+        Cached per regime.  ``aR`` = a2 * R gives g' = aR * w for the position
+        surfaces (edges, guard); for ``vel`` g' = s * dw/dt.
+        """
+        key = (self.z, self.s, guard_mode)
+        ev = self._event_cache.get(key)
+        if ev is not None:
+            return ev
+        ev = []
+        db, R = self.db, self.R
         if self.gap > 0.0:
             if self.z == 1:
-                ev.append((np.array([0.0, 0.0, 1.0]), -self.db, "zone", 0))
+                ev.append((0.0, 0.0, 1.0, -db, "zone", 0, R))
             elif self.z == -1:
-                ev.append((np.array([0.0, 0.0, -1.0]), -self.db, "zone", 0))
+                ev.append((0.0, 0.0, -1.0, -db, "zone", 0, -R))
             else:
-                ev.append((np.array([0.0, 0.0, -1.0]), self.db, "zone", 1))
-                ev.append((np.array([0.0, 0.0, 1.0]), self.db, "zone", -1))
+                ev.append((0.0, 0.0, -1.0, db, "zone", 1, -R))
+                ev.append((0.0, 0.0, 1.0, db, "zone", -1, R))
         if self.Tc > 0.0:
-            ev.append((np.array([0.0, float(self.s), 0.0]), 0.0, "vel", 0))
+            ev.append((0.0, float(self.s), 0.0, 0.0, "vel", 0, 0.0))
         if guard_mode:
-            ev.append((np.array([0.0, 0.0, -guard_mode / self.R]), guard_rad, "guard", 0))
+            ev.append((0.0, 0.0, -guard_mode / R, guard_rad, "guard", 0, -guard_mode))
+        self._event_cache[key] = ev
         return ev
 
-    def _slip(self, x: np.ndarray, u: float, L: float, guard_mode: int, guard_rad: float):
-        modal = self.modal[self.z != 0]
+    def _suspects(self, x: State, xe: State, c1: float, events: list[tuple]) -> list[tuple]:
+        """Event functions that may have fired within a step x -> xe: g(end) < 0, or a dip (g' - then +)."""
+        out = []
+        I, w, dl = x
+        for ev in events:
+            a1, a2, b = ev[1], ev[2], ev[3]
+            ge = a1 * xe[1] + a2 * xe[2] + b
+            if ge >= 0.0:
+                if a1 * w + a2 * dl + b < 0.0:
+                    continue
+                if ev[4] == "vel":
+                    spring0 = self.Kd * dl if self.z != 0 else 0.0
+                    springe = self.Kd * xe[2] if self.z != 0 else 0.0
+                    gp0 = a1 * ((self.Kt * I - self.b * w - spring0) / self.J + c1)
+                    gpe = a1 * ((self.Kt * xe[0] - self.b * xe[1] - springe) / self.J + c1)
+                else:
+                    gp0, gpe = ev[6] * w, ev[6] * xe[1]
+                if not (gp0 < 0.0 < gpe):
+                    continue                      # no crossing and no dip: the regime holds
+            out.append((ev, ge))
+        return out
+
+    def quick_entry(self, u: float, L: float, guard_mode: int, guard_rad: float) -> tuple | None:
+        """The whole-step shortcut for the current regime, or None when only ``advance`` will do.
+
+        Returns ``(P0..P8, q0, q1, q2, lo, hi, s, k0, k1, k2, k3)``: the step is
+        ``x+ = P x + q``; it is event-free when delta+ stays in [lo, hi] (backlash
+        edges and the armed guard are all bounds on delta) with w keeping its sign
+        when a bound is finite (delta monotone, so the ends bound the step), and,
+        with Coulomb friction, s w+ >= 0 without a dip of s w (s dw/dt = s (k0 I +
+        k1 w + k2 delta + k3) not going from - to +).  In stick (s = 0) the step is
+        the current's exponential, event-free when |Kt I+ - spring| <= Tc (I is
+        monotone, so the end bounds the step): then lo = hi = the frozen delta's
+        spring torque and k0 = Kt.  The simulator inlines the test; entries are
+        cached per (regime, u, L, guard).
+        """
+        key = (self.z, self.s, u, L, guard_mode)
+        entry = self._quick.get(key)
+        if entry is not None or key in self._quick:
+            return entry
+        z, s = self.z, self.s
+        if L > self.max_step:
+            entry = None
+        elif s == 0:
+            e = math.exp(-L * self.Ra / self.La)
+            entry = (e, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, (1.0 - e) * u / self.Ra, 0.0, 0.0,
+                     -math.inf, math.inf, 0, self.Kt, 0.0, 0.0, 0.0)
+        else:
+            PS = self.modal[z != 0].raw.get(L)
+            if PS is None:
+                return None                       # not cached yet: ``advance`` builds it on repeat
+            P, S = PS
+            c0 = u / self.La
+            c1 = (z * self.Kd * self.db - self.Tc * s) / self.J
+            q = (S[0] * c0 + S[1] * c1, S[3] * c0 + S[4] * c1, S[6] * c0 + S[7] * c1)
+            lo, hi = -math.inf, math.inf
+            if self.gap > 0.0:
+                lo, hi = {1: (self.db, math.inf), 0: (-self.db, self.db), -1: (-math.inf, -self.db)}[z]
+            if guard_mode > 0:
+                hi = min(hi, guard_rad * self.R)
+            elif guard_mode < 0:
+                lo = max(lo, -guard_rad * self.R)
+            kd = self.Kd if z != 0 else 0.0
+            slip = s if self.Tc > 0.0 else 0
+            entry = (*P, *q, lo, hi, slip, self.Kt / self.J, -self.b / self.J, -kd / self.J, c1)
+        self._quick[key] = entry
+        return entry
+
+    def _slip(self, x: State, u: float, L: float, guard_mode: int, guard_rad: float):
+        z = self.z
+        modal = self.modal[z != 0]
         # c: input, Coulomb torque against the motion, spring offset outside the play
-        c = np.array([u / self.La, (self.z * self.Kd * self.db - self.Tc * self.s) / self.J, 0.0])
-        y0, d = modal.coefficients(x, c)
-        ev = self._events(guard_mode, guard_rad)
-        n_grid = max(1, math.ceil(L / GRID_DT - 1e-9))
-        taus = L * np.arange(1, n_grid + 1) / n_grid
-        X = modal.states(y0, d, taus)
-        if not ev:
-            return X[-1], L, None
-        Aev = np.array([e[0] for e in ev])
-        bev = np.array([e[1] for e in ev])
-        G = X @ Aev.T + bev
-        neg = G < 0.0
-        rows = np.flatnonzero(neg.any(axis=1))
-        if len(rows) == 0:
-            return X[-1], L, None
-        r = int(rows[0])
-        lo = float(taus[r - 1]) if r > 0 else 0.0
-        hi = float(taus[r])
-        g_lo = G[r - 1] if r > 0 else Aev @ x + bev
+        c0 = u / self.La
+        c1 = (z * self.Kd * self.db - self.Tc * self.s) / self.J
+        coeffs = None
+        PS = modal.raw.get(L)
+        if PS is None and not modal.seen(L):
+            coeffs = modal.coefficients(x, (c0, c1, 0.0))      # a one-off length: closed form, no matrices
+            xe = modal.state(*coeffs, L)
+        else:
+            P, S = PS or modal.step(L)
+            I, w, dl = x
+            xe = (P[0] * I + P[1] * w + P[2] * dl + S[0] * c0 + S[1] * c1,
+                  P[3] * I + P[4] * w + P[5] * dl + S[3] * c0 + S[4] * c1,
+                  P[6] * I + P[7] * w + P[8] * dl + S[6] * c0 + S[7] * c1)
+        events = self._events(guard_mode, guard_rad)
+        suspects = self._suspects(x, xe, c1, events) if events else ()
+        if not suspects:
+            return xe, L, None
+        if coeffs is None:
+            coeffs = modal.coefficients(x, (c0, c1, 0.0))
         best_tau, best = math.inf, None
-        for i in np.flatnonzero(neg[r]):
-            f = modal.scalar(Aev[i], float(bev[i]), y0, d)
-            tau = _first_root(f, lo, hi, float(g_lo[i]))
+        for (a0, a1, a2, b, kind, arg, _), ge in suspects:
+            gd = modal.event_function((a0, a1, a2), b, *coeffs)
+            g0, gp0 = a1 * x[1] + a2 * x[2] + b, gd(0.0)[1]
+            if ge >= 0.0:
+                t_min = _zero_of_derivative(gd, 0.0, L)
+                # a dip below the surface by rounding only (e.g. break-away with the net torque
+                # exactly at Tc, where g'(0) is 0 up to rounding) is not an event
+                tol = 1e-12 * (abs(a1 * x[1]) + abs(a2 * x[2]) + abs(a1 * xe[1]) + abs(a2 * xe[2]) + abs(b))
+                if gd(t_min)[0] >= -tol:
+                    continue                      # the dip stays above the surface
+                hi = t_min
+            else:
+                hi = L
+            tau = _first_root(gd, hi, g0, gp0)
             if tau < best_tau:
-                best_tau, best = tau, (ev[i][2], ev[i][3])
-        xn = modal.states(y0, d, np.array([best_tau]))[0] if best_tau > 0.0 else x.copy()
+                best_tau, best = tau, (kind, arg)
+        if best is None:
+            return xe, L, None
+        xn = modal.state(*coeffs, best_tau) if best_tau > 0.0 else x
         return xn, best_tau, best
 
 
-def _first_root(f, lo: float, hi: float, f_lo: float) -> float:
-    """First tau in [lo, hi] where f turns negative, given f(hi) < 0 on the grid.
+def _zero_of_derivative(gd, lo: float, hi: float) -> float:
+    """Where g' = 0 inside [lo, hi] given g'(lo) < 0 < g'(hi): Illinois regula falsi.
 
-    When the bracket starts on the surface itself (f(lo) <= 0 at lo = 0, the
-    regime was just entered there) look for a positive point inside first;
-    if f never leaves the surface towards positive, the event is immediate.
+    Only g at that point matters (is the dip below the surface?), and g is flat
+    there, so 1e-12 of the step is far more than enough.
     """
-    if f_lo <= 0.0:
+    d_lo, d_hi = gd(lo)[1], gd(hi)[1]
+    span = hi - lo
+    mid = lo
+    side = 0
+    for _ in range(100):
+        new = lo - d_lo * (hi - lo) / (d_hi - d_lo)
+        if not (lo <= new <= hi):
+            new = 0.5 * (lo + hi)
+        d_new = gd(new)[1]
+        if abs(new - mid) <= 1e-12 * span or d_new == 0.0:
+            return new
+        mid = new
+        if d_new < 0.0:
+            lo, d_lo = new, d_new
+            if side == -1:
+                d_hi *= 0.5
+            side = -1
+        else:
+            hi, d_hi = new, d_new
+            if side == 1:
+                d_lo *= 0.5
+            side = 1
+    return mid
+
+
+def _first_root(gd, hi: float, g0: float, gp0: float) -> float:
+    """First tau in [0, hi] where g turns negative, given g(hi) < 0.
+
+    When the regime was entered on the surface itself (g(0) <= 0), the event is
+    immediate unless g first rises (g'(0) > 0): then a positive point inside is
+    found first.  The root is polished by Newton safeguarded by the bracket.
+    """
+    lo = 0.0
+    if g0 <= 0.0:
+        if gp0 <= 0.0:
+            return 0.0
         prev, found = hi, False
         for _ in range(60):
-            probe = prev * 0.5
-            if f(probe) > 0.0:
+            probe = 0.5 * prev
+            if gd(probe)[0] > 0.0:
                 found = True
                 break
             prev = probe
         if not found:
-            return lo
+            return 0.0
         lo, hi = probe, prev
-    if f(hi) >= 0.0:             # the grid said negative; closed form is at rounding level: take hi
+    g_lo, g_hi = gd(lo)[0], gd(hi)[0]
+    if g_hi >= 0.0:
         return hi
-    return brentq(f, lo, hi, xtol=1e-15, rtol=1e-15)
+    tau = lo + (hi - lo) * g_lo / (g_lo - g_hi)
+    for _ in range(100):
+        g, dg = gd(tau)
+        if g > 0.0:
+            lo = tau
+        elif g < 0.0:
+            hi = tau
+        else:
+            return tau
+        new = tau - g / dg if dg != 0.0 else 0.5 * (lo + hi)
+        if not (lo < new < hi):
+            new = 0.5 * (lo + hi)
+        if abs(new - tau) <= 1e-14 or hi - lo <= 1e-14:
+            return new
+        tau = new
+    return 0.5 * (lo + hi)

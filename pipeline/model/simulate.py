@@ -21,6 +21,7 @@ Two exact integrators behind one ``simulate``:
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass
 
@@ -153,19 +154,30 @@ def _run_linear(spec: PlantSpec, plan: _Plan, x: np.ndarray) -> tuple[np.ndarray
     """Exact ZOH stepping: x+ = Phi(h) x + Gamma(h) u0 + sum over motor changes at a of Gamma(h - a) du."""
     A, B = spec.params.state_matrices()
     steps = StepCache(A, B)
+    cached = steps.raw
     t = plan.t.tolist()
     n = len(t)
     R, guard, V, Td = spec.params.R, spec.guard_rad, spec.v_drive, spec.Td
     I, w, dl = (float(v) for v in x)
-    out = np.empty((n, 3))
-    dirs = np.zeros(n, dtype=np.int8)
+    out = []
+    dirs = []
     pending: deque[tuple[float, float]] = deque()   # (time the motor sees it, voltage)
     u_m = 0.0                                        # motor voltage; off until the first command
     d = last = 0
+    own = plan.closed_loop
     for k in range(n):
-        out[k] = (I, w, dl)
-        d = plan.decide(k, d, dl / R, guard)
-        dirs[k] = d
+        out.append((I, w, dl))
+        if own and k > plan.start:                   # next_dir, inlined: this loop is the hot path
+            th = dl / R
+            if d >= 0 and th >= guard:
+                d = -1
+            elif d <= 0 and th <= -guard:
+                d = 1
+            elif d == 0:
+                d = 1
+        else:
+            d = plan.decide(k, d, dl / R, guard)
+        dirs.append(d)
         if d != last or k == 0:
             pending.append((t[k] + Td, d * V))
             last = d
@@ -173,7 +185,7 @@ def _run_linear(spec: PlantSpec, plan: _Plan, x: np.ndarray) -> tuple[np.ndarray
             break
         tk, t_next = t[k], t[k + 1]
         h = t_next - tk
-        P = steps(h)
+        P = cached.get(h) or steps(h)
         u0 = u_m
         e0 = e1 = e2 = 0.0
         while pending and pending[0][0] < t_next - TIME_EPS:
@@ -189,44 +201,81 @@ def _run_linear(spec: PlantSpec, plan: _Plan, x: np.ndarray) -> tuple[np.ndarray
         I, w, dl = (P[0] * I + P[1] * w + P[2] * dl + P[9] * u0 + e0,
                     P[3] * I + P[4] * w + P[5] * dl + P[10] * u0 + e1,
                     P[6] * I + P[7] * w + P[8] * dl + P[11] * u0 + e2)
-    return out, dirs
+    return np.array(out), np.array(dirs, dtype=np.int8)
 
 
 def _run_events(spec: PlantSpec, plan: _Plan, x: np.ndarray, *, continuous: bool) -> tuple[np.ndarray, np.ndarray]:
     """Event-driven exact integration (stick/slip, backlash edges, continuous guard, delayed commands)."""
     plant = NonsmoothPlant(spec)
+    x = tuple(float(v) for v in x)
     plant.reset(x)
     t = plan.t.tolist()
     n = len(t)
     R, guard, V, Td = spec.params.R, spec.guard_rad, spec.v_drive, spec.Td
-    out = np.empty((n, 3))
-    dirs = np.zeros(n, dtype=np.int8)
+    out = []
+    dirs = []
     pending: deque[tuple[float, float]] = deque()
     u_m = 0.0
     d = last = 0
+    own = plan.closed_loop
+    entries = plant._quick
     for k in range(n):
-        out[k] = x
-        d = plan.decide(k, d, x[2] / R, guard)
-        dirs[k] = d
+        out.append(x)
+        if own and k > plan.start:                   # next_dir, inlined
+            th = x[2] / R
+            if d >= 0 and th >= guard:
+                d = -1
+            elif d <= 0 and th <= -guard:
+                d = 1
+            elif d == 0:
+                d = 1
+        else:
+            d = plan.decide(k, d, x[2] / R, guard)
+        dirs.append(d)
         if d != last or k == 0:
             pending.append((t[k] + Td, d * V))
             last = d
         if k + 1 == n:
             break
         tk, t_next = t[k], t[k + 1]
-        armed = continuous and k >= plan.start
+        armed = d if continuous and k >= plan.start else 0
+        while pending and pending[0][0] <= tk + TIME_EPS:
+            u_m = pending.popleft()[1]
+        if not pending or pending[0][0] >= t_next - TIME_EPS:
+            # the common case, inlined: a cached whole step with no event (see NonsmoothPlant.quick_entry)
+            h = t_next - tk
+            e = entries.get((plant.z, plant.s, u_m, h, armed)) or plant.quick_entry(u_m, h, armed, guard)
+            if e is not None:
+                I, w, dl = x
+                Ie = e[0] * I + e[1] * w + e[2] * dl + e[9]
+                we = e[3] * I + e[4] * w + e[5] * dl + e[10]
+                de = e[6] * I + e[7] * w + e[8] * dl + e[11]
+                sl = e[14]
+                if plant.s == 0:
+                    net = plant.Kt * Ie - plant.spring_torque(dl)
+                    ok = -plant.Tc <= net <= plant.Tc
+                else:
+                    ok = e[12] <= de <= e[13] and (
+                        (w > 0.0) == (we > 0.0) or (e[12] == -math.inf and e[13] == math.inf))
+                    if ok and sl:
+                        ok = sl * we >= 0.0 and not (
+                            sl * (e[15] * I + e[16] * w + e[17] * dl + e[18]) < 0.0
+                            < sl * (e[15] * Ie + e[16] * we + e[17] * de + e[18]))
+                if ok:
+                    x = (Ie, we, de)
+                    continue
         while True:
             while pending and pending[0][0] <= tk + TIME_EPS:
                 u_m = pending.popleft()[1]
             stop = pending[0][0] if pending and pending[0][0] < t_next - TIME_EPS else t_next
-            x, tk, hit = plant.advance(x, tk, stop, u_m, d if armed else 0, guard)
+            x, tk, hit = plant.advance(x, tk, stop, u_m, armed, guard)
             if hit:
                 # the continuous controller reverses the instant theta reaches the guard
-                d = last = -d
+                d = last = armed = -d
                 pending.append((tk + Td, d * V))
             elif stop == t_next:
                 break
-    return out, dirs
+    return np.array(out), np.array(dirs, dtype=np.int8)
 
 
 def paper_energy(t: np.ndarray, current: np.ndarray, v_rms: float = 6.0, period: float | None = None) -> float:
