@@ -30,7 +30,7 @@ from pipeline.runs import RunPaths, load_config, load_signals
 
 VELOCITY_NOTE = (f"omega_rad_s = omega_savgol_rad_s: slope of a local cubic through {SAVGOL_WINDOW} samples on the "
                  "real time axis; centred, so no half-sample lag, and it averages encoder quantisation "
-                 "(RMS error vs true velocity on synthetic paper-rig recordings: 0.004 rad/s, against "
+                 "(RMS error vs true velocity on virtual-rig recordings: 0.004 rad/s, against "
                  "0.064 rad/s for the paper's backward difference)")
 # the logged current is de-noised within each phase before it is rectified (|I|, paper energy) or squared
 # (copper loss), which would otherwise turn sensor noise into energy: cubic over 15 samples (0.75 s)
@@ -89,7 +89,7 @@ def derive_tables(signals: pd.DataFrame, cfg: RigConfig) -> DerivedTables:
     kinematics = pd.DataFrame(kin)
 
     phases = phase_table(t, theta, omega, smooth, dirs, guard)
-    over = overshoot_table(t, theta, omega, smooth, dirs, guard)
+    over = overshoot_table(t, theta, omega, current, dirs, guard, current_smooth=smooth)
     cycles = cycle_table(over)
 
     count_rad = 2 * math.pi / cfg.encoder.counts_per_rev
