@@ -34,10 +34,10 @@ NULL_VALUE: dict[str, float] = {
 def _scan(name: str) -> np.ndarray:
     """Coarse scan points inside the effect's BOUNDS (the null value included)."""
     lo, hi = next(iter(CATALOGUE[name].BOUNDS.values()))
-    if name == "current_sensor_offset":
-        return np.linspace(-0.6, 0.6, 25)
+    if name == "current_sensor_offset":        # costs no simulation (see Evaluator)
+        return np.linspace(-0.6, 0.6, 121)
     if name == "spring_stiffness":
-        return np.unique(np.concatenate([np.geomspace(0.25, 4.0, 17), [1.0]]))
+        return np.unique(np.concatenate([np.geomspace(0.25, 4.0, 17), [0.9, 0.95, 0.98, 1.0, 1.02, 1.05, 1.1]]))
     top = {"coulomb_friction": 5e-3, "driver_voltage_drop": 5.0, "loop_delay": 0.3, "backlash": 0.4}.get(name, hi)
     return np.concatenate([[lo], np.geomspace(top * 2e-3, top, 15)])
 
@@ -88,11 +88,15 @@ class Evaluator:
             rm = r if mask is None else r[mask]
             # a thousandth of the noise floor keeps the log finite on noiseless test data
             total += 0.5 * len(rm) * np.log(np.mean(rm * rm) + 1e-3 * self.floor[s])
-        return float(total) if np.isfinite(total) else float("inf")
+        return float(total) if np.isfinite(total) else FAILED_NLL
 
     def mse(self, sim: SimResult, mask: np.ndarray | None = None) -> dict[str, float]:
         return {s: float(np.mean((r if mask is None else r[mask]) ** 2))
                 for s, r in residuals(self.meas, sim).items()}
+
+
+# what a model the simulator cannot run scores: finite (Brent's method does arithmetic on it), huge
+FAILED_NLL = 1e12
 
 
 def _failed(t: np.ndarray) -> SimResult:
@@ -248,8 +252,11 @@ def fit_candidate(ev: Evaluator, base: tuple[Effect, ...], name: str,
     for train in folds:
         test = ~train
         v_f = gauss_newton_step(sens, value, train, name)
-        fold_values.append(v_f)
         sim_f = ev.sim((*base, make(name, v_f)))
+        if ev.nll(sim_f) >= FAILED_NLL:           # the step landed where the simulator fails
+            v_f = value
+            sim_f = ev.sim((*base, make(name, v_f)))
+        fold_values.append(v_f)
         gain += ev.nll(base_sim, test) - ev.nll(sim_f, test)
         share = test.sum() / len(test)
         for s, m in ev.mse(base_sim, test).items():

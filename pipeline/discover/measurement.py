@@ -19,6 +19,7 @@ from pipeline.config import RigConfig
 from pipeline.errors import PdrError
 from pipeline.model.effects import Effect, PlantSpec
 from pipeline.model.simulate import SimResult, simulate
+from pipeline.validate.compare import initial_state
 
 
 @dataclass(frozen=True)
@@ -102,7 +103,7 @@ def measurement_from_kinematics(kin: pd.DataFrame, config: RigConfig, name: str)
     if d is None:
         raise PdrError("neither a logged 'dir' nor an inferred 'dir_inferred' column; "
                        "replay needs the command sequence", path=name)
-    x0 = initial_state(t, theta, config)
+    x0 = initial_state(kin, config.plant_spec())
     return Measurement(name=name, config=config, kinematics=kin, t=t, theta=theta, omega=omega,
                        current=current, dir=d, dir_source=source, x0=x0)
 
@@ -114,18 +115,3 @@ def _command(kin: pd.DataFrame) -> tuple[np.ndarray | None, str]:
             if np.all(np.isfinite(values)) and np.all(np.isin(values, (-1, 0, 1))):
                 return values.astype(np.int8), source
     return None, ""
-
-
-def initial_state(t: np.ndarray, theta: np.ndarray, config: RigConfig) -> tuple[float, float, float]:
-    """[I, w, delta] at the first sample: current taken as zero (the motor starts from rest,
-    MODEL.md), angle measured, velocity from the first samples' slope (0 at rest).
-
-    The measured current is not used: a sensor offset (a catalogued effect)
-    would otherwise leak into the initial state and hide itself.
-    """
-    k = min(3, len(t) - 1)
-    w0 = float(np.polyfit(t[:k + 1] - t[0], theta[:k + 1], 1)[0]) if k >= 2 else 0.0
-    step = 2.0 * np.pi / config.encoder.counts_per_rev
-    if abs(theta[k] - theta[0]) <= 2 * step:
-        w0 = 0.0
-    return (0.0, w0, float(theta[0]) * config.model.R)

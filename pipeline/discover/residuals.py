@@ -57,11 +57,34 @@ def residuals(meas: Measurement, sim: SimResult) -> dict[str, np.ndarray]:
     return out
 
 
+def time_resolution(meas: Measurement) -> float:
+    """The logged clock's step [s]: 1 ms for millis(), 1 us for micros(); for seconds, the
+    smallest spacing between the distinct sample intervals (1 ms when they are all equal)."""
+    unit = meas.config.columns.time_unit
+    if unit in ("ms", "us"):
+        return 1e-3 if unit == "ms" else 1e-6
+    d = np.unique(np.round(np.diff(meas.t), 9))
+    steps = np.diff(d)
+    return float(steps.min()) if len(steps) else 1e-3
+
+
+def timing_floor(meas: Measurement) -> float:
+    """Angle error from clock truncation: the true instant lies up to one clock step after the
+    logged one, an error of w * U(0, res) with second moment w^2 res^2 / 3 (its mean, half a step,
+    shifts the whole axis, so it is structure that no model removes)."""
+    w = meas.omega[np.isfinite(meas.omega)]
+    w2 = float(np.mean(w * w)) if len(w) else 0.0
+    return w2 * time_resolution(meas) ** 2 / 3.0
+
+
 def noise_floor(meas: Measurement, sim: SimResult) -> dict[str, float]:
-    """Per-sample noise variance of each fitted signal, estimated on the residual of ``sim``."""
+    """Per-sample variance of each fitted signal that no model can remove: white noise estimated
+    on the residual of ``sim`` (at least the quantisation), plus the clock's share for the angle."""
     quant = quantisation_floor(meas)
     res = residuals(meas, sim)
-    return {s: max(difference_noise(r), quant[s]) for s, r in res.items()}
+    floor = {s: max(difference_noise(r), quant[s]) for s, r in res.items()}
+    floor["theta"] += timing_floor(meas)
+    return floor
 
 
 # ---------------------------------------------------------------- signatures

@@ -40,7 +40,7 @@ MAX_DELTA_BIC = -10.0        # "strong" evidence on Kass & Raftery's scale
 SIGNATURE_SHRINK = 0.5       # the motivating pattern must at least halve ...
 SIGNATURE_NOISE = 3.0        # ... or fall to this many noise variances
 STRUCTURE_FLOORS = 25.0      # residual MSE above this many noise variances is structure
-NEAR_TIE = 0.9               # runner-up within 10 % of the winner's held-out gain
+NEAR_TIE = 2.0              # runner-up leaves at most twice the winner's held-out structure (+1 noise variance)
 MAX_EFFECTS = 3
 FULL_FITS = (4, 3, 3)        # per round, how many of the best-scanning candidates get the full assessment
 
@@ -55,6 +55,7 @@ class Assessment:
     heldout_share: float                  # best share of held-out structure removed over the signals
     heldout_gain_floors: float            # best held-out MSE removed, in noise variances
     worst_worsening_floors: float
+    structure_left: float                 # held-out MSE above the noise left after it, in noise variances
     signature_before: float
     signature_after: float
     checks: dict[str, bool] = field(default_factory=dict)
@@ -76,6 +77,7 @@ class Assessment:
             "interval": {f.parameter: list(f.interval)}, "fold_estimates": {f.parameter: list(f.fold_values)},
             "delta_bic": self.delta_bic, "heldout_nll_gain": f.heldout_nll_gain,
             "heldout_gain_noise_floors": self.heldout_gain_floors,
+            "heldout_structure_left_noise_floors": self.structure_left,
             "heldout_mse_before": f.heldout_mse_before, "heldout_mse_after": f.heldout_mse_after,
             "signature_before": self.signature_before, "signature_after": self.signature_after,
             "checks": dict(self.checks), "accepted": self.accepted,
@@ -154,16 +156,12 @@ def assess(ev: Evaluator, meas: Measurement, effects: tuple[Effect, ...], name: 
     n_obs = meas.n * len(meas.signals)
     nll_before = ev.nll(ev.sim(effects))
     delta_bic = 2.0 * (fit.nll - nll_before) + 1.0 * np.log(n_obs)
-    shares, gains, worse = [], [], []
-    for s, fl in ev.floor.items():
-        b, a = fit.heldout_mse_before[s], fit.heldout_mse_after[s]
-        gains.append((b - a) / fl)
-        worse.append((a - b) / fl)
-        shares.append((b - a) / max(b - fl, fl))
+    share, gains, worse = heldout_share(fit, ev.floor)
+    left = sum(max(fit.heldout_mse_after[s] / fl - 1.0, 0.0) for s, fl in ev.floor.items())
     sig_b = signature_energy(name, meas, ev, effects)
     sig_a = signature_energy(name, meas, ev, trial)
-    a = Assessment(fit=fit, round=round_, delta_bic=float(delta_bic), heldout_share=float(max(shares)),
-                   heldout_gain_floors=float(max(gains)), worst_worsening_floors=float(max(worse)),
+    a = Assessment(fit=fit, round=round_, delta_bic=float(delta_bic), heldout_share=share,
+                   heldout_gain_floors=gains, worst_worsening_floors=worse, structure_left=float(left),
                    signature_before=sig_b, signature_after=sig_a)
     a.checks = {
         "improvement_vs_noise": a.heldout_gain_floors >= MIN_GAIN_FLOORS,
@@ -174,6 +172,24 @@ def assess(ev: Evaluator, meas: Measurement, effects: tuple[Effect, ...], name: 
         "signature_removed": sig_a <= SIGNATURE_SHRINK * sig_b or sig_a <= SIGNATURE_NOISE,
     }
     return a
+
+
+def heldout_share(fit: Fit, floor: dict[str, float]) -> tuple[float, float, float]:
+    """(share of held-out structure removed, best MSE gain in noise variances, worst worsening).
+
+    Structure is MSE above the noise floor, in noise variances, summed over the
+    signals that have at least one noise variance of it; when none has, the
+    share is the gain itself (a small effect near the noise is judged by size).
+    """
+    ex_b = {s: fit.heldout_mse_before[s] / fl - 1.0 for s, fl in floor.items()}
+    ex_a = {s: fit.heldout_mse_after[s] / fl - 1.0 for s, fl in floor.items()}
+    gains = {s: ex_b[s] - ex_a[s] for s in floor}
+    structured = [s for s in floor if ex_b[s] >= 1.0]
+    if structured:
+        share = sum(gains[s] for s in structured) / sum(ex_b[s] for s in structured)
+    else:
+        share = max(gains.values())
+    return float(min(share, 1.0)), float(max(gains.values())), float(max(-g for g in gains.values()))
 
 
 def refit_jointly(ev: Evaluator, effects: tuple[Effect, ...], sweeps: int = 2) -> tuple[Effect, ...]:
@@ -235,10 +251,12 @@ def select(meas: Measurement, names: tuple[str, ...] | None = None) -> Selection
             break
         best = passing[0]
         runner = next((a for a in assessed if a is not best), None)
-        if (near_tie is None and runner is not None and best.fit.heldout_nll_gain > 0
-                and runner.fit.heldout_nll_gain >= NEAR_TIE * best.fit.heldout_nll_gain):
+        if (near_tie is None and runner is not None
+                and runner.structure_left + 1.0 <= NEAR_TIE * (best.structure_left + 1.0)):
             near_tie = {"round": round_, "chosen": best.fit.name, "runner_up": runner.fit.name,
                         "scores": {best.fit.name: best.score, runner.fit.name: runner.score},
+                        "structure_left": {best.fit.name: best.structure_left,
+                                           runner.fit.name: runner.structure_left},
                         "heldout_nll_gain": {best.fit.name: best.fit.heldout_nll_gain,
                                              runner.fit.name: runner.fit.heldout_nll_gain},
                         "runner_up_accepted": runner.accepted}

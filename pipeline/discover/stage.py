@@ -1,0 +1,128 @@
+"""The discovery workflow on one run: localise, fit every candidate, select, confirm, report.
+
+Pure core (``discover``: kinematics + rig config -> ``Discovery``), imperative
+shell (``discover_run``: a processed run folder -> files in an output folder).
+The MSEs before/after are computed exactly as the validation stage computes
+them (``pipeline.validate.compare.simulate_both`` + ``metrics.signal_errors``),
+so ``pdr discover`` and ``pdr validate`` report the same numbers for the same model.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from pipeline.config import RigConfig, effects_toml_snippet
+from pipeline.discover.measurement import Measurement, measurement_from_kinematics
+from pipeline.discover.residuals import describe, signatures
+from pipeline.discover.selection import Selection, select
+from pipeline.model.effects import Effect
+from pipeline.model.simulate import SimResult
+from pipeline.validate.compare import simulate_both
+from pipeline.validate.metrics import mse_only, signal_errors
+
+WAYS = ("closed_loop", "replay")
+
+
+@dataclass
+class Discovery:
+    meas: Measurement
+    selection: Selection
+    base: dict[str, SimResult]            # closed_loop / replay with the rig's model
+    final: dict[str, SimResult]           # the same with the discovered effects added
+    mse_before: dict[str, dict[str, float]]   # way -> signal -> MSE
+    mse_after: dict[str, dict[str, float]]
+    localisation_before: list[str]
+    localisation_after: list[str]
+    seconds: float
+
+    @property
+    def effects(self) -> tuple[Effect, ...]:
+        return self.selection.effects
+
+    @property
+    def verdict(self) -> str:
+        return self.selection.verdict
+
+    @property
+    def closed_loop_confirmed(self) -> bool:
+        """The augmented model also free-runs closer to the measurement (geometric mean of the
+        fitted signals' MSE ratios below 1) -- or nothing was added."""
+        if not self.effects:
+            return True
+        b, a = self.mse_before["closed_loop"], self.mse_after["closed_loop"]
+        logs = [np.log(a[s] / b[s]) for s in self.meas.signals if b.get(s) and a.get(s)]
+        return bool(logs) and float(np.mean(logs)) < 0.0
+
+
+def _errors(kin: pd.DataFrame, sims: dict[str, SimResult]) -> dict[str, dict[str, float]]:
+    return {way: mse_only(signal_errors(kin, sims[way])) for way in WAYS}
+
+
+def discover(kin: pd.DataFrame, config: RigConfig, name: str) -> Discovery:
+    """The whole workflow on one kinematics table (no I/O)."""
+    t0 = time.perf_counter()
+    meas = measurement_from_kinematics(kin, config, name)
+    sel = select(meas)
+    base = simulate_both(meas.spec(), meas.kinematics)
+    final = simulate_both(meas.spec(sel.effects), meas.kinematics) if sel.effects else base
+    sig_b = signatures(meas, base["replay"], sel.floor)
+    sig_a = signatures(meas, final["replay"], sel.floor)
+    return Discovery(meas=meas, selection=sel, base=base, final=final,
+                     mse_before=_errors(meas.kinematics, base), mse_after=_errors(meas.kinematics, final),
+                     localisation_before=describe(sig_b, sel.floor), localisation_after=describe(sig_a, sel.floor),
+                     seconds=time.perf_counter() - t0)
+
+
+def _effect_json(e: Effect, sel: Selection) -> dict:
+    out = e.to_json()
+    for rnd in sel.rounds:
+        for a in rnd:
+            if getattr(a, "accepted", False) and a.fit.name == e.name:
+                out["interval"] = {a.fit.parameter: list(a.fit.interval)}
+                out["round"] = a.round
+    return out
+
+
+def unexplained_text(d: Discovery) -> list[str]:
+    """Where the structure that no candidate removes lives."""
+    sel = d.selection
+    left = {s: round(v, 1) for s, v in sel.excess_after.items()}
+    lines = [f"structure left above the noise floor (in noise variances): {left}"]
+    return lines + d.localisation_after
+
+
+def discovery_json(d: Discovery, recording: str) -> dict:
+    """The object ``pdr discover --json`` prints (INTERFACE.md) plus the evidence behind it."""
+    sel = d.selection
+    candidates = [a.to_json() for rnd in sel.rounds for a in rnd]
+    out = {
+        "recording": recording,
+        "run": d.meas.name,
+        "effects": [_effect_json(e, sel) for e in d.effects],
+        "verdict": d.verdict,
+        "mse_before": d.mse_before["closed_loop"],
+        "mse_after": d.mse_after["closed_loop"],
+        "mse_before_replay": d.mse_before["replay"],
+        "mse_after_replay": d.mse_after["replay"],
+        "mse_way": "closed_loop (the paper's free run); *_replay: the logged command drives the model",
+        "closed_loop_confirmed": d.closed_loop_confirmed,
+        "candidates": candidates,
+        "near_tie": sel.near_tie,
+        "noise_floor": sel.floor,
+        "structure_before": sel.excess_before,
+        "structure_after": sel.excess_after,
+        "localisation_before": d.localisation_before,
+        "localisation_after": d.localisation_after,
+        "effects_toml": effects_toml_snippet(d.effects) if d.effects else "",
+        "dir_source": d.meas.dir_source,
+        "simulations": sel.simulations,
+        "seconds": round(d.seconds, 3),
+    }
+    if d.verdict == "unexplained":
+        out["unexplained"] = unexplained_text(d)
+    return out
