@@ -94,11 +94,15 @@ def split_lines(data: bytes, source: str) -> tuple[pa.StringArray, list[Quaranti
     bad: list[Quarantined] = []
     try:
         data.decode("utf-8")
-        clean = b"\x00" not in data
+        clean = not _has_control_bytes(np.frombuffer(data, dtype=np.uint8))
     except UnicodeDecodeError:
         clean = False
     if not clean:
         data, bad = _blank_undecodable(data, sep)
+        content = sum(1 for ln in data.split(sep) if ln.strip(b" \t\r\n")) + len(bad)
+        if len(bad) > content / 2:
+            raise IngestError(f"binary or non-UTF-8 content: {len(bad)} of {content} lines hold NUL, control "
+                              f"or non-UTF-8 bytes; expected a UTF-8 CSV capture", path=source, line=bad[0].line)
     buf = np.frombuffer(data, dtype=np.uint8)
     ends = np.flatnonzero(buf == sep[0])
     offsets = np.concatenate(([0], ends + 1)).astype(np.int64)
@@ -116,19 +120,25 @@ def split_lines(data: bytes, source: str) -> tuple[pa.StringArray, list[Quaranti
     return text, bad, notes
 
 
+def _has_control_bytes(buf: np.ndarray) -> bool:
+    """NUL and other C0 control bytes (tab, CR, LF allowed): a binary file, or serial noise on that line."""
+    ctrl = (buf < 32) | (buf == 127)
+    return bool(ctrl.any() and (ctrl & (buf != 9) & (buf != 10) & (buf != 13)).any())
+
+
 def _blank_undecodable(data: bytes, sep: bytes) -> tuple[bytes, list[Quarantined]]:
-    """Slow path: lines with NUL bytes or invalid UTF-8 become empty (numbering kept) and are reported."""
+    """Slow path: lines with control bytes or invalid UTF-8 become empty (numbering kept) and are reported."""
     out, bad = [], []
     for i, raw in enumerate(data.split(sep), start=1):
         try:
             raw.decode("utf-8")
-            ok = b"\x00" not in raw
+            ok = not _has_control_bytes(np.frombuffer(raw, dtype=np.uint8))
         except UnicodeDecodeError:
             ok = False
         if ok:
             out.append(raw)
         else:
-            bad.append(_q(i, "binary or non-UTF-8 bytes", raw.decode("utf-8", "replace").replace("\x00", "\\0")))
+            bad.append(_q(i, "binary or non-UTF-8 bytes", raw.decode("utf-8", "replace").encode("unicode_escape").decode()))
             out.append(b"")
     return sep.join(out), bad
 
