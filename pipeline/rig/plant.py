@@ -247,8 +247,11 @@ def run_reference(spec: PlantSpec, t: np.ndarray | None = None, *,
                         turns.append(TurningPoint(float(te), float(ye[2] / R), "reversal"))
         # 4. samples strictly inside the segment: from the dense output; a flip there truncates
         truncated = False
-        while k < n and t[k] < t_end - _EPS_T:
-            xk = sol.sol(t[k])
+        inside = k + int(np.searchsorted(t[k:], t_end - _EPS_T))
+        states = sol.sol(t[k:inside]).T if inside > k else None    # one vectorised dense-output call
+        first = k
+        while k < inside:
+            xk = states[k - first]
             d_new = decide(k, xk[2] / R - theta_ref, d)
             if d_new != d and not forced[k]:
                 t_end, x_end, hit, truncated = float(t[k]), xk, None, True
