@@ -12,11 +12,11 @@ Run: python -m benchmarks.bench_derive
 from __future__ import annotations
 
 import math
-import time
 
 import numpy as np
 import pandas as pd
 
+from benchmarks.bench_rig import best_of
 from pipeline.config import default_config
 from pipeline.derive.energy import energy_terms
 from pipeline.derive.stage import derive_tables
@@ -26,15 +26,6 @@ from pipeline.rig.recording import RigSetup
 from tests.derive.rigdata import rig_run
 
 COUNT = 2 * math.pi / 6533.12
-
-
-def best_of(fn, repeat: int = 3) -> float:
-    times = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return min(times)
 
 
 def polyfit_per_sample(t: np.ndarray, theta: np.ndarray) -> np.ndarray:
