@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import json
-import os
+import re
 import signal
 import subprocess
 import sys
@@ -16,11 +16,13 @@ import pytest
 from mcap.reader import make_reader
 
 from pipeline.config import default_config
+from pipeline.errors import PdrError
 from pipeline.ingest.stage import ingest_recording
-from pipeline.ingest.write import CHANNEL_GROUPS
+from pipeline.ingest.mcap_bulk import write_mcap
+from pipeline.ingest.write import CHANNEL_GROUPS, log_time_ns, mcap_channels
 from pipeline.runs import load_config, load_signals
 from pipeline.schemas import load_schema
-from tests.ingest.helpers import CLEAN
+from tests.ingest.helpers import CLEAN, ingest
 
 PDR = str(Path(sys.executable).parent / "pdr")
 
@@ -88,17 +90,20 @@ def test_mcap_round_trip_values_schemas_metadata(tmp_path):
     assert summary.statistics.message_count == 3 * len(df)
 
 
-def test_mcap_large_recording_many_chunks(tmp_path):
-    n = 60_000
+def test_mcap_many_chunks_read_back_in_order(tmp_path):
+    n = 3000
     t = np.arange(n) * 50
     body = "\n".join(f"{a},{a % 977 - 400},{a % 1024},{(a // 500) % 3 - 1}" for a in t)
-    result = ingest_recording(_recording(tmp_path, ("t_ms,counts,adc,dir\n" + body + "\n").encode()),
-                              tmp_path / "processed")
-    messages, _, _, _, summary = _read_mcap(result.runs[0].mcap)
-    assert summary.statistics.chunk_count > 3
-    counts = [m["counts"] for _, m in messages["/encoder"]]
-    assert counts == (t % 977 - 400).tolist()
-    assert [m["mode"] for _, m in messages["/command"]] == result.tables["rec"]["mode"].tolist()
+    runs, _ = ingest(("t_ms,counts,adc,dir\n" + body + "\n").encode())
+    df = runs[0].signals
+    path = tmp_path / "small_chunks.mcap"
+    with open(path, "wb") as fh:
+        write_mcap(fh, mcap_channels(df), log_time_ns(df["t_s"].to_numpy()), {}, chunk_bytes=4096)
+    messages, _, _, _, summary = _read_mcap(path)
+    assert summary.statistics.chunk_count > 30
+    assert [m["counts"] for _, m in messages["/encoder"]] == (t % 977 - 400).tolist()
+    assert [m["mode"] for _, m in messages["/command"]] == df["mode"].tolist()
+    assert [m["current_a"] for _, m in messages["/current"]] == df["current_a"].tolist()
 
 
 def test_channels_for_columns_not_logged_are_absent(tmp_path):
@@ -133,7 +138,7 @@ def test_cli_ingests_and_prints_summary(tmp_path):
     assert (tmp_path / "processed" / "rec" / "rec.mcap").is_file()
 
 
-@pytest.mark.parametrize("data, toml, message", [
+REFUSALS = [
     (b"", None, "empty file"),
     (b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR\x00" * 20, None, "binary or non-UTF-8"),
     (b"time,enc\n1,2\n", None, "no recognisable columns"),
@@ -142,7 +147,21 @@ def test_cli_ingests_and_prints_summary(tmp_path):
     (CLEAN, "[encoder]\ncpr = 3\n", "key 'encoder.cpr': unknown key"),
     (CLEAN, "[encoder]\ncounts_per_rev = \"many\"\n", "expected a number"),
     (CLEAN, "[current_sensor]\nsensitivity_v_per_a = -0.185\n", "expected a positive number"),
-])
+]
+
+
+@pytest.mark.parametrize("data, toml, message", REFUSALS)
+def test_refusals_write_nothing(tmp_path, data, toml, message):
+    csv = _recording(tmp_path, data)
+    if toml:
+        (csv.parent / "rec.toml").write_text(toml)
+    with pytest.raises(PdrError, match=re.escape(message)) as err:
+        ingest_recording(csv, tmp_path / "processed")
+    assert "\n" not in str(err.value) and str(csv.parent) in str(err.value)
+    assert not (tmp_path / "processed").exists()
+
+
+@pytest.mark.parametrize("data, toml, message", [REFUSALS[0], REFUSALS[4], REFUSALS[5]])
 def test_cli_refusals_one_line_nonzero(tmp_path, data, toml, message):
     csv = _recording(tmp_path, data)
     if toml:
