@@ -1,0 +1,125 @@
+"""Non-smooth effects against the rig's independent reference plant, and the stick mode itself.
+
+Tolerance: 1e-7 (rad, rad/s, A) at every sample.  The reference
+(``pipeline.rig.plant.simulate_reference``) integrates the same physics with
+DOP853 at rtol 1e-10 / atol 1e-12 and locates each event with its own root
+finder, so it carries ~1e-9 of error over a run (observed 1e-10..6e-9 here);
+the fast simulator is exact up to rounding.  1e-7 keeps a margin over that and
+is still four orders below anything a smeared event would produce: missing a
+velocity zero crossing, a break-away or a backlash edge by even 1 ms moves
+theta by ~1e-3 rad, and one control period of switching error by ~0.1 rad.
+"""
+
+from dataclasses import replace
+
+import math
+
+import numpy as np
+import pytest
+
+from pipeline.config import default_config
+from pipeline.model.nonsmooth import NonsmoothPlant
+from pipeline.model.simulate import simulate
+from pipeline.rig.plant import simulate_reference
+from tests.model.ivp_reference import jittered_times
+
+TOL = 1e-7
+BASE = default_config().plant_spec()
+T = jittered_times(500, seed=11)
+
+CASES = {
+    "coulomb_friction": dict(Tc=6e-4),
+    "coulomb_friction_sticky": dict(Tc=2e-3),
+    "backlash": dict(gap=0.1),
+    "backlash_wide": dict(gap=0.3),
+    "loop_delay": dict(Td=0.05),
+    "all_together": dict(Tc=8e-4, gap=0.15, Td=0.03, I0=0.05, v_drive=5.2,
+                         params=BASE.params.with_(b=9e-4, J=BASE.params.J + 5e-4)),
+}
+
+
+def _close(a, b):
+    np.testing.assert_array_equal(a.dir, b.dir)
+    for f in ("theta", "omega", "current", "current_measured"):
+        np.testing.assert_allclose(getattr(a, f), getattr(b, f), rtol=0, atol=TOL, err_msg=f)
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_closed_loop_matches_reference_plant(name):
+    spec = replace(BASE, **CASES[name])
+    _close(simulate(spec, T), simulate_reference(spec, T))
+
+
+@pytest.mark.parametrize("name", ["coulomb_friction_sticky", "all_together"])
+def test_continuous_guard_matches_reference_plant(name):
+    spec = replace(BASE, **CASES[name])
+    _close(simulate(spec, T, guard="continuous"), simulate_reference(spec, T, guard="continuous"))
+
+
+def test_replay_with_every_effect_matches_reference_plant():
+    spec = replace(BASE, **CASES["all_together"])
+    log = simulate(BASE, T).dir.copy()
+    log[:5] = 0
+    _close(simulate(spec, T, dir_log=log, closed_loop=False),
+           simulate_reference(spec, T, dir_log=log, closed_loop=False))
+
+
+def test_break_away_from_rest_happens_exactly_when_the_motor_torque_reaches_tc():
+    # Replay q1 from rest on a 1 ms grid.  Stuck, I(t) = V/Ra (1 - e^{-t Ra/La}) and
+    # the pinion may not move before Kt I(t) = Tc: t* = -La/Ra ln(1 - Tc Ra / (Kt V)).
+    p = BASE.params
+    Tc = 1.767e-3                                        # t* ~ 0.30 s
+    spec = replace(BASE, Tc=Tc)
+    t = np.arange(0, 601) * 1e-3
+    r = simulate(spec, t, dir_log=np.ones(len(t), dtype=int), closed_loop=False)
+    t_star = -p.La / p.Ra * math.log(1.0 - Tc * p.Ra / (p.Kt * BASE.v_drive))
+    before, after = t <= t_star, t > t_star
+    assert 0.29 < t_star < 0.31
+    assert np.all(r.omega[before] == 0.0) and np.all(r.theta[before] == 0.0)    # exactly still
+    assert np.all(r.omega[after] > 0.0) and np.all(np.diff(r.theta[after]) > 0.0)
+    # while stuck the current follows its RL exponential exactly
+    i_rl = BASE.v_drive / p.Ra * (1.0 - np.exp(-t[before] * p.Ra / p.La))
+    np.testing.assert_allclose(r.current[before], i_rl, rtol=1e-12, atol=1e-15)
+
+
+def test_stuck_intervals_hold_still_while_the_net_torque_is_within_tc():
+    spec = replace(BASE, Tc=2e-3)
+    r = simulate(spec, T)
+    p = spec.params
+    stuck = r.omega == 0.0
+    assert stuck.sum() >= 20                              # this Tc parks the pinion at every reversal
+    net = p.Kt * r.current - p.spring_torque_per_rad * r.theta
+    assert np.all(np.abs(net[stuck]) <= spec.Tc * (1 + 1e-9))
+    # each stuck run keeps theta bit-identical and ends with the pinion moving again
+    edges = np.flatnonzero(np.diff(stuck.astype(int)))
+    runs = np.split(np.arange(len(T)), edges + 1)
+    runs = [idx for idx in runs if stuck[idx[0]]]
+    assert len(runs) >= 5
+    for idx in runs:
+        assert np.all(r.theta[idx] == r.theta[idx[0]])
+        if idx[-1] + 1 < len(T):
+            assert r.omega[idx[-1] + 1] != 0.0
+
+
+def test_continuous_guard_switches_exactly_at_the_guard():
+    spec = replace(BASE, Tc=6e-4, gap=0.1)
+    plant = NonsmoothPlant(spec)
+    x = (0.0, 0.0, 0.0)
+    plant.reset(x)
+    t, hit = 0.0, False
+    while not hit:
+        x, t, hit = plant.advance(x, t, t + 0.05, spec.v_drive, guard_mode=1, guard_rad=spec.guard_rad)
+    assert abs(x[2] / spec.params.R - spec.guard_rad) < 1e-12
+    assert 0.5 < t < 2.0
+
+
+def test_continuous_guard_switches_between_samples_not_at_them():
+    spec = replace(BASE, Tc=6e-4)
+    r = simulate(spec, T, guard="continuous")
+    s = simulate(spec, T)
+    assert r.switches >= 10
+    flips = np.flatnonzero(np.diff(r.dir.astype(int)) != 0) + 1
+    # the command has already flipped at the first sample past the crossing...
+    assert all(abs(r.theta[k - 1]) < spec.guard_rad for k in flips)
+    # ...so the continuous variant overshoots less than the sketch's sampled guard
+    assert r.theta.max() < s.theta.max()
