@@ -10,7 +10,6 @@ vertices, not the sample grid.
 
 from __future__ import annotations
 
-import numpy as np
 import pandas as pd
 
 from pipeline.derive.stats import describe

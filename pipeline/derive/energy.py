@@ -44,6 +44,28 @@ def paper_energy_j(current: np.ndarray, v_rms: float, period_s: float) -> float:
     return float(v_rms * period_s * np.sum(np.abs(y[:-1] + y[1:])) / 2.0)
 
 
+def applied_voltage(t: np.ndarray, dirs: np.ndarray, v_drive: float, Td: float = 0.0) -> np.ndarray:
+    """Mean voltage over each sample interval [t_k, t_k+1] when the command reaches the motor ``Td`` late.
+
+    The command decided at sample j acts from t_j + Td (``loop_delay``);
+    before t_0 + Td the motor is taken as off.  With Td = 0 this is just
+    ``dirs * v_drive`` (the zero-order hold).  The last entry repeats the
+    last interval's value (it is never integrated).
+    """
+    t = np.asarray(t, dtype=float)
+    u = np.asarray(dirs, dtype=float) * v_drive
+    if Td <= 0.0 or len(t) < 2:
+        return u
+    # cumulative integral of the delayed input: piecewise linear with breakpoints t_j + Td
+    knots = np.concatenate([t + Td, [t[-1] + Td + 1.0]])
+    cum = np.concatenate([[0.0], np.cumsum(u * np.diff(knots))])
+    U = np.interp(t, knots, cum, left=0.0)
+    out = np.empty(len(t))
+    out[:-1] = np.diff(U) / np.diff(t)
+    out[-1] = out[-2]
+    return out
+
+
 def dead_zone(theta: np.ndarray, gap: float) -> np.ndarray:
     """dz(theta): the angle the springs feel through a backlash of total width ``gap`` centred on 0."""
     theta = np.asarray(theta, dtype=float)

@@ -18,13 +18,12 @@ import pandas as pd
 
 from pipeline.config import RigConfig
 from pipeline.derive.cycles import cycle_summary, cycle_table
-from pipeline.derive.energy import energy_terms
+from pipeline.derive.energy import applied_voltage, energy_terms, paper_energy_j
 from pipeline.derive.overshoot import overshoot_summary, overshoot_table
-from pipeline.derive.energy import paper_energy_j
 from pipeline.derive.phases import MODE_OF_DIR, infer_dir, phase_bounds, phase_table, reversal_indices
+from pipeline.derive.stats import describe
 from pipeline.derive.velocity import (DEFAULT_ESTIMATOR, SAVGOL_ORDER, SAVGOL_WINDOW, backward_difference,
                                       savgol_velocity, smooth_by_phase)
-from pipeline.derive.stats import describe
 from pipeline.errors import PdrError
 from pipeline.runs import RunPaths, load_config, load_signals
 
@@ -114,11 +113,9 @@ def derive_tables(signals: pd.DataFrame, cfg: RigConfig) -> DerivedTables:
         energy = None
         not_computed["energy"] = "no current column: energy not computed"
     else:
-        u = dirs.astype(float) * spec.v_drive
+        u = applied_voltage(t, dirs, spec.v_drive, spec.Td)
         energy = energy_terms(t, smooth, omega, theta, u, spec, v_rms=spec.v_drive, period_s=spec.period_s)
         energy["energy_paper_logged_current_j"] = paper_energy_j(current, spec.v_drive, spec.period_s)
-        if spec.Td:
-            notes.append("input energy takes the command as applied at its sample (loop_delay not shifted)")
 
     modes = [MODE_OF_DIR[int(d)] for d in phases["dir"]]
     summary = {

@@ -7,7 +7,6 @@ tests depend on the virtual rig but not on the ingest stage's parser.
 
 from __future__ import annotations
 
-import io
 
 import numpy as np
 import pandas as pd

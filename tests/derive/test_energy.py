@@ -53,3 +53,26 @@ def test_two_samples_and_one_sample_do_not_crash(paper_run):
     assert two["input_energy_j"] == pytest.approx(6.0 * 0.05 * 0.05)
     with pytest.raises(ValueError):
         energy_terms(np.zeros(3), np.zeros(2), np.zeros(3), np.zeros(3), np.zeros(3), spec, 6.0, 0.05)
+
+
+def test_applied_voltage_with_a_loop_delay():
+    from pipeline.derive.energy import applied_voltage
+
+    t = np.array([0.0, 0.05, 0.10, 0.15, 0.20])
+    dirs = np.array([1, 1, -1, -1, -1])
+    assert np.array_equal(applied_voltage(t, dirs, 6.0), dirs * 6.0)
+    # 20 ms late: the first interval is 20 ms off then +6 V; the reversal at 0.10 s lands at 0.12 s
+    u = applied_voltage(t, dirs, 6.0, Td=0.02)
+    assert np.allclose(u[:4], [6.0 * 0.6, 6.0, 6.0 * (0.4 - 0.6), -6.0])
+
+
+def test_balance_closes_with_a_loop_delay():
+    from pipeline.derive.energy import applied_voltage
+    from pipeline.model.effects import LoopDelay
+
+    spec = LoopDelay(Td=0.02).apply(default_config().plant_spec())
+    t = np.arange(0.0, 10.0, 0.05)
+    r = simulate(spec, t)
+    u = applied_voltage(r.t, r.dir, spec.v_drive, spec.Td)
+    e = energy_terms(r.t, r.current, r.omega, r.theta, u, spec, 6.0, 0.05)
+    assert abs(e["balance_residual_j"]) < 0.01 * e["input_energy_j"]
