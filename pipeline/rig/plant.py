@@ -230,6 +230,8 @@ def run_reference(spec: PlantSpec, t: np.ndarray | None = None, *,
         sol = solve_ivp(plant.rhs(applied * V, slip, region), (t_now, t_stop), x, method="DOP853",
                         rtol=rtol, atol=atol, dense_output=True, events=events or None)
         segments += 1
+        if segments > 100 * n + 10_000:          # events chattering without progress: a bug, not a result
+            raise RuntimeError(f"reference plant stalled at t = {t_now:.6f} s after {segments} segments")
         t_end = float(sol.t[-1])
         x_end = sol.y[:, -1].copy()
         hit = None
