@@ -54,24 +54,29 @@ def make(name: str, value: float) -> Effect:
 class Evaluator:
     """Replays a measurement under many models, caching by plant (I0 applied afterwards).
 
-    A sensor offset changes nothing but the measured current, so the plant is
-    simulated once and the offset added: scanning it costs no simulation.
+    A sensor offset changes nothing but the measured current (and, when the
+    recording does not start at rest, the initial current read through it), so
+    the plant is simulated once per initial state and the offset added.
     """
 
     def __init__(self, meas: Measurement, floor: dict[str, float]) -> None:
         self.meas = meas
         self.floor = floor
-        self._cache: dict[PlantSpec, SimResult] = {}
+        self._cache: dict[tuple[PlantSpec, tuple], SimResult] = {}
         self.simulations = 0
         self.failures: list[str] = []
+        self._x0: dict[float, tuple[float, float, float]] = {}
 
     def sim(self, effects: tuple[Effect, ...]) -> SimResult:
         spec = self.meas.spec(effects)
-        key = replace(spec, I0=0.0)
+        if spec.I0 not in self._x0:          # the initial state depends on the model only through I0
+            self._x0[spec.I0] = self.meas.x0(spec)
+        x0 = self._x0[spec.I0]
+        key = (replace(spec, I0=0.0), x0)
         if key not in self._cache:
             self.simulations += 1
             try:
-                self._cache[key] = self.meas.replay(key)
+                self._cache[key] = self.meas.replay(key[0], x0)
             except (RuntimeError, FloatingPointError, ValueError, PdrError) as err:
                 # a parameter value the simulator cannot run counts as infinitely bad, not as a crash
                 self.failures.append(f"{key}: {err}")
@@ -107,7 +112,7 @@ def _failed(t: np.ndarray) -> SimResult:
 
 @dataclass
 class Fit:
-    """One candidate effect fitted on top of the current model."""
+    """One candidate effect fitted on top of the current model (whose parameters may have moved)."""
 
     name: str
     parameter: str
@@ -115,6 +120,7 @@ class Fit:
     nll: float                        # on all samples
     interval: tuple[float, float]     # ~95 %, Jacobian with an autocorrelation correction, widened by fold spread
     fold_values: tuple[float, ...]    # the estimate from each held-out fold's training half
+    base: tuple[Effect, ...] = ()     # the effects found earlier, refitted together with this one
     heldout_mse_before: dict[str, float] = field(default_factory=dict)
     heldout_mse_after: dict[str, float] = field(default_factory=dict)
     heldout_nll_gain: float = 0.0     # nll decrease on held-out samples (> 0: better)
@@ -124,41 +130,138 @@ class Fit:
         return make(self.name, self.value)
 
     @property
+    def effects(self) -> tuple[Effect, ...]:
+        """The whole augmented model: earlier effects (refitted) plus this one."""
+        return (*self.base, self.effect)
+
+    @property
     def excludes_null(self) -> bool:
         lo, hi = self.interval
         null = NULL_VALUE[self.name]
         return not (lo <= null <= hi)
 
 
-def scan(ev: Evaluator, base: tuple[Effect, ...], name: str) -> tuple[np.ndarray, np.ndarray]:
-    """The coarse scan: scan points and their nll on all samples."""
+def value_of(e: Effect) -> float:
+    return next(iter(e.parameters.values()))
+
+
+def _clip(name: str, v: float) -> float:
+    lo_b, hi_b = next(iter(CATALOGUE[name].BOUNDS.values()))
+    return float(np.clip(v, lo_b, hi_b))
+
+
+# ------------------------------------------------------------------ sensitivities
+
+@dataclass
+class Sensitivity:
+    """Residuals at a set of effects and their derivatives with respect to each effect's parameter."""
+
+    r0: dict[str, np.ndarray]
+    jac: list[dict[str, np.ndarray]]      # one per effect, per signal
+
+
+def _step(name: str, v: float) -> float:
+    lo_b, hi_b = next(iter(CATALOGUE[name].BOUNDS.values()))
+    return max(abs(v) * 1e-3, (hi_b - lo_b) * 1e-6)
+
+
+def sensitivity(ev: Evaluator, effects: tuple[Effect, ...]) -> Sensitivity:
+    """Forward differences, one simulation per effect (stepping inward at a bound or a failure)."""
+    r0 = residuals(ev.meas, ev.sim(effects))
+    jac = []
+    for i, e in enumerate(effects):
+        v = value_of(e)
+        lo_b, hi_b = next(iter(CATALOGUE[e.name].BOUNDS.values()))
+        h = _step(e.name, v)
+        v2 = v + h if v + h <= hi_b else v - h
+        moved = lambda x: (*effects[:i], make(e.name, x), *effects[i + 1:])  # noqa: E731
+        r1 = residuals(ev.meas, ev.sim(moved(v2)))
+        if not all(np.all(np.isfinite(r)) for r in r1.values()) and v - h >= lo_b:
+            v2 = v - h
+            r1 = residuals(ev.meas, ev.sim(moved(v2)))
+        jac.append({s: (r1[s] - r0[s]) / (v2 - v) for s in r0})
+    return Sensitivity(r0=r0, jac=jac)
+
+
+def gauss_newton(r0: dict[str, np.ndarray], jac: list[dict[str, np.ndarray]],
+                 mask: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(step, information matrix) of the concentrated likelihood: each signal weighted by its
+    residual variance, so rad and A need no exchange rate."""
+    k = len(jac)
+    A = np.zeros((k, k))
+    g = np.zeros(k)
+    for s, r in r0.items():
+        rm = r if mask is None else r[mask]
+        J = np.column_stack([j[s] if mask is None else j[s][mask] for j in jac])
+        w = 1.0 / (float(np.mean(rm ** 2)) + 1e-30)
+        A += w * J.T @ J
+        g += w * J.T @ rm
+    try:
+        step = -np.linalg.lstsq(A, g, rcond=None)[0]
+    except np.linalg.LinAlgError:
+        step = np.zeros(k)
+    return step, A
+
+
+def moved_effects(effects: tuple[Effect, ...], step: np.ndarray, trust: float = 0.5) -> tuple[Effect, ...]:
+    """Effects with their parameters moved by ``step``, each move limited to a trust region."""
+    out = []
+    for e, d in zip(effects, step):
+        v = value_of(e)
+        limit = trust * max(abs(v), _step(e.name, v) * 100)
+        out.append(make(e.name, _clip(e.name, v + float(np.clip(d, -limit, limit)))))
+    return tuple(out)
+
+
+def _nll_of(ev: Evaluator, r: dict[str, np.ndarray]) -> float:
+    total = sum(0.5 * len(x) * np.log(np.mean(x * x) + 1e-3 * ev.floor[s]) for s, x in r.items())
+    return float(total) if np.isfinite(total) else FAILED_NLL
+
+
+# ------------------------------------------------------------------ scan and fit
+
+@dataclass
+class Scan:
+    """The coarse scan of one candidate: per point the nll with the earlier effects relaxed."""
+
+    grid: np.ndarray
+    nll: np.ndarray
+    bases: list[tuple[Effect, ...]]      # the earlier effects, moved to accommodate each point
+
+
+def scan(ev: Evaluator, base: tuple[Effect, ...], name: str, base_sens: Sensitivity | None = None) -> Scan:
+    """nll over the scan points.  With earlier effects, each point's nll is also predicted
+    with their parameters moved by one Gauss-Newton step (sensitivities taken once, at the
+    current model; no extra simulation), so a candidate is not judged against an earlier
+    estimate that had absorbed part of it.  The full fit checks the prediction."""
     grid = _scan(name)
-    return grid, np.array([ev.nll(ev.sim((*base, make(name, v)))) for v in grid])
+    losses, bases = [], []
+    for v in grid:
+        r = residuals(ev.meas, ev.sim((*base, make(name, v))))
+        loss, moved = _nll_of(ev, r), base
+        if base and base_sens is not None and loss < FAILED_NLL:
+            step, _ = gauss_newton(r, base_sens.jac)
+            trial = moved_effects(base, step)
+            applied = np.array([value_of(t) - value_of(b) for t, b in zip(trial, base)])
+            predicted = {s: x + sum(j[s] * a for j, a in zip(base_sens.jac, applied)) for s, x in r.items()}
+            loss_p = _nll_of(ev, predicted)
+            if loss_p < loss:
+                loss, moved = loss_p, trial
+        losses.append(loss)
+        bases.append(moved)
+    return Scan(grid=grid, nll=np.array(losses), bases=bases)
 
 
-def fit_value(ev: Evaluator, base: tuple[Effect, ...], name: str, mask: np.ndarray | None = None,
-              bracket: tuple[float, float] | None = None,
-              scanned: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[float, float]:
-    """Best value of ``name``'s parameter on top of ``base`` (and its nll on ``mask``).
-
-    Without a bracket the coarse scan (reused when given) picks the basin first.
-    """
+def fit_value(ev: Evaluator, base: tuple[Effect, ...], name: str, bracket: tuple[float, float],
+              mask: np.ndarray | None = None) -> tuple[float, float]:
+    """Best value of ``name``'s parameter in ``bracket`` on top of ``base`` (Brent), and its nll."""
     def loss(v: float) -> float:
         return ev.nll(ev.sim((*base, make(name, v))), mask)
 
-    if bracket is None:
-        grid, losses = scanned if scanned is not None else scan(ev, base, name)
-        i = int(np.argmin(losses))
-        lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]
-        best_v, best_l = float(grid[i]), float(losses[i])
-    else:
-        lo, hi = bracket
-        best_v, best_l = float("nan"), float("inf")
+    lo, hi = bracket
     scale = max(abs(lo), abs(hi), 1e-12)
-    res = minimize_scalar(loss, bounds=(lo, hi), method="bounded", options={"xatol": 2e-4 * scale, "maxiter": 30})
-    if res.fun < best_l:
-        best_v, best_l = float(res.x), float(res.fun)
-    return best_v, best_l
+    res = minimize_scalar(loss, bounds=(lo, hi), method="bounded", options={"xatol": 5e-4 * scale, "maxiter": 25})
+    return float(res.x), float(res.fun)
 
 
 def bracket_around(name: str, v: float, width: float = 0.3) -> tuple[float, float]:
@@ -177,6 +280,16 @@ def bracket_around(name: str, v: float, width: float = 0.3) -> tuple[float, floa
     return max(v * (1.0 - width), lo_b), min(v * (1.0 + width), hi_b)
 
 
+def refit(ev: Evaluator, effects: tuple[Effect, ...], width: float = 0.2) -> tuple[Effect, ...]:
+    """One coordinate-descent sweep: each effect's parameter by Brent in a bracket around its value."""
+    current = list(effects)
+    for i, e in enumerate(current):
+        others = tuple(current[:i] + current[i + 1:])
+        v_new, _ = fit_value(ev, others, e.name, bracket_around(e.name, value_of(e), width))
+        current[i] = make(e.name, v_new)
+    return tuple(current)
+
+
 def autocorrelation_time(r: np.ndarray, max_lag: int = 50) -> float:
     """1 + 2 sum rho_k (to the first negative rho): how many samples one independent one is worth."""
     r = r - r.mean()
@@ -192,58 +305,44 @@ def autocorrelation_time(r: np.ndarray, max_lag: int = 50) -> float:
     return tau
 
 
-@dataclass
-class Sensitivity:
-    """Residuals at the estimate and their derivative with respect to the parameter, per signal."""
-
-    r0: dict[str, np.ndarray]
-    jac: dict[str, np.ndarray]
-
-
-def sensitivity(ev: Evaluator, base: tuple[Effect, ...], name: str, v: float) -> Sensitivity:
-    lo_b, hi_b = next(iter(CATALOGUE[name].BOUNDS.values()))
-    h = max(abs(v) * 1e-3, (hi_b - lo_b) * 1e-6)
-    v2 = v + h if v + h <= hi_b else v - h
-    r0 = residuals(ev.meas, ev.sim((*base, make(name, v))))
-    r1 = residuals(ev.meas, ev.sim((*base, make(name, v2))))
-    if not all(np.all(np.isfinite(r)) for r in r1.values()) and v - h >= lo_b:
-        v2 = v - h
-        r1 = residuals(ev.meas, ev.sim((*base, make(name, v2))))
-    return Sensitivity(r0=r0, jac={s: (r1[s] - r0[s]) / (v2 - v) for s in r0})
-
-
-def interval(ev: Evaluator, sens: Sensitivity, v: float) -> tuple[float, float]:
-    """~95 % interval from the sensitivity of the residuals (Gauss-Newton), per signal's residual
-    variance, with the sample count divided by the residual's autocorrelation time."""
-    info = 0.0
+def interval(sens: Sensitivity, v: float) -> tuple[float, float]:
+    """~95 % interval of the last effect's parameter from the joint information matrix
+    (Gauss-Newton, the other parameters free), with each signal's sample count divided by
+    its residual's autocorrelation time."""
+    k = len(sens.jac)
+    A = np.zeros((k, k))
     for s, r in sens.r0.items():
-        jac = sens.jac[s]
-        var = float(np.mean(r ** 2)) + 1e-3 * ev.floor[s]
-        info += float(np.dot(jac, jac)) / (var * autocorrelation_time(r))
-    half = 1.96 / np.sqrt(info) if info > 0 else float("inf")
+        J = np.column_stack([j[s] for j in sens.jac])
+        var = float(np.mean(r ** 2)) + 1e-30
+        A += J.T @ J / (var * autocorrelation_time(r))
+    try:
+        cov = np.linalg.pinv(A)
+        half = 1.96 * float(np.sqrt(max(cov[-1, -1], 0.0)))
+    except np.linalg.LinAlgError:
+        half = float("inf")
+    if not np.isfinite(half) or half == 0.0 and A[-1, -1] == 0.0:
+        half = float("inf")
     return v - half, v + half
 
 
-def gauss_newton_step(sens: Sensitivity, v: float, mask: np.ndarray, name: str) -> float:
-    """The estimate on ``mask`` alone, one Gauss-Newton step from the all-sample estimate
-    (the concentrated likelihood weights each signal by its residual variance)."""
-    num = den = 0.0
-    for s, r in sens.r0.items():
-        rm, jm = r[mask], sens.jac[s][mask]
-        w = 1.0 / (float(np.mean(rm ** 2)) + 1e-12)
-        num += w * float(np.dot(jm, rm))
-        den += w * float(np.dot(jm, jm))
-    lo_b, hi_b = next(iter(CATALOGUE[name].BOUNDS.values()))
-    step = -num / den if den > 0 else 0.0
-    return float(np.clip(v + step, lo_b, hi_b))
-
-
 def fit_candidate(ev: Evaluator, base: tuple[Effect, ...], name: str,
-                  folds: tuple[np.ndarray, np.ndarray],
-                  scanned: tuple[np.ndarray, np.ndarray] | None = None) -> Fit:
-    """Fit on all samples; estimate on each fold's training half and score on the other half."""
-    value, nll_all = fit_value(ev, base, name, scanned=scanned)
-    sens = sensitivity(ev, base, name, value)
+                  folds: tuple[np.ndarray, np.ndarray], scanned: Scan | None = None) -> Fit:
+    """Fit ``name`` (and re-fit the earlier effects with it) on all samples; estimate on each
+    fold's training half by one joint Gauss-Newton step and score on the other half."""
+    sc = scanned if scanned is not None else scan(ev, base, name)
+    i = int(np.argmin(sc.nll))
+    moved = sc.bases[i]
+    lo, hi = sc.grid[max(i - 1, 0)], sc.grid[min(i + 1, len(sc.grid) - 1)]
+    value, nll_all = fit_value(ev, moved, name, (lo, hi))
+    at_grid = ev.nll(ev.sim((*moved, make(name, sc.grid[i]))))
+    if nll_all > at_grid:
+        value, nll_all = float(sc.grid[i]), at_grid
+    if base:
+        effects = refit(ev, (*moved, make(name, value)))
+        moved, value = effects[:-1], value_of(effects[-1])
+        nll_all = ev.nll(ev.sim(effects))
+    effects = (*moved, make(name, value))
+    sens = sensitivity(ev, effects)
     base_sim = ev.sim(base)
     fold_values = []
     gain = 0.0
@@ -251,24 +350,25 @@ def fit_candidate(ev: Evaluator, base: tuple[Effect, ...], name: str,
     mse_a: dict[str, float] = {}
     for train in folds:
         test = ~train
-        v_f = gauss_newton_step(sens, value, train, name)
-        sim_f = ev.sim((*base, make(name, v_f)))
+        step, _ = gauss_newton(sens.r0, sens.jac, train)
+        trial = moved_effects(effects, step)
+        sim_f = ev.sim(trial)
         if ev.nll(sim_f) >= FAILED_NLL:           # the step landed where the simulator fails
-            v_f = value
-            sim_f = ev.sim((*base, make(name, v_f)))
-        fold_values.append(v_f)
+            trial = effects
+            sim_f = ev.sim(trial)
+        fold_values.append(value_of(trial[-1]))
         gain += ev.nll(base_sim, test) - ev.nll(sim_f, test)
         share = test.sum() / len(test)
         for s, m in ev.mse(base_sim, test).items():
             mse_b[s] = mse_b.get(s, 0.0) + m * share
         for s, m in ev.mse(sim_f, test).items():
             mse_a[s] = mse_a.get(s, 0.0) + m * share
-    lo, hi = interval(ev, sens, value)
+    lo, hi = interval(sens, value)
     spread = (max(fold_values) - min(fold_values)) / 2.0
     lo, hi = min(lo, value - spread), max(hi, value + spread)
     return Fit(name=name, parameter=parameter_of(name), value=value, nll=nll_all, interval=(lo, hi),
-               fold_values=tuple(fold_values), heldout_mse_before=mse_b, heldout_mse_after=mse_a,
-               heldout_nll_gain=gain)
+               fold_values=tuple(fold_values), base=tuple(moved), heldout_mse_before=mse_b,
+               heldout_mse_after=mse_a, heldout_nll_gain=gain)
 
 
 def folds_by_cycle(meas: Measurement) -> tuple[np.ndarray, np.ndarray]:

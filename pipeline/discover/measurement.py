@@ -10,7 +10,7 @@ whose error jumps whenever a simulated switch slips by one control period.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
@@ -35,7 +35,6 @@ class Measurement:
     current: np.ndarray | None      # A, as the sensor reads it
     dir: np.ndarray                 # int8 command after each sample (logged, else inferred)
     dir_source: str                 # "logged" or "inferred"
-    x0: tuple[float, float, float] = field(default=(0.0, 0.0, 0.0))   # [I, w, delta] at t[0]
 
     @property
     def n(self) -> int:
@@ -57,15 +56,15 @@ class Measurement:
         """The rig's model ([model] + [effects] of its TOML) plus ``effects``."""
         return self.config.plant_spec(tuple(effects))
 
-    def replay(self, spec: PlantSpec) -> SimResult:
-        """The logged command drives the model (smooth in the parameters)."""
-        return simulate(spec, self.t, x0=self.x0, dir0=_first_dir(self.dir), dir_log=self.dir,
-                        closed_loop=False)
+    def x0(self, spec: PlantSpec) -> tuple[float, float, float]:
+        """[I, w, delta] at the first sample, as validation takes it (the current read through the
+        model's sensor offset, so an offset candidate also corrects a misread initial current)."""
+        return initial_state(self.kinematics, spec)
 
-    def closed_loop(self, spec: PlantSpec) -> SimResult:
-        """The model's own sampled guard decides, from the recording's initial state."""
-        return simulate(spec, self.t, x0=self.x0, dir0=_first_dir(self.dir), dir_log=self.dir,
-                        closed_loop=True)
+    def replay(self, spec: PlantSpec, x0: tuple[float, float, float] | None = None) -> SimResult:
+        """The logged command drives the model (smooth in the parameters)."""
+        return simulate(spec, self.t, x0=self.x0(spec) if x0 is None else x0, dir0=_first_dir(self.dir),
+                        dir_log=self.dir, closed_loop=False)
 
 
 def _first_dir(d: np.ndarray) -> int:
@@ -103,9 +102,8 @@ def measurement_from_kinematics(kin: pd.DataFrame, config: RigConfig, name: str)
     if d is None:
         raise PdrError("neither a logged 'dir' nor an inferred 'dir_inferred' column; "
                        "replay needs the command sequence", path=name)
-    x0 = initial_state(kin, config.plant_spec())
     return Measurement(name=name, config=config, kinematics=kin, t=t, theta=theta, omega=omega,
-                       current=current, dir=d, dir_source=source, x0=x0)
+                       current=current, dir=d, dir_source=source)
 
 
 def _command(kin: pd.DataFrame) -> tuple[np.ndarray | None, str]:

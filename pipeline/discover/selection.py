@@ -27,19 +27,20 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pipeline.discover.candidates import (
-    Evaluator, Fit, bracket_around, fit_candidate, fit_value, folds_by_cycle, make, parameter_of, scan,
+    Evaluator, Fit, Scan, fit_candidate, folds_by_cycle, parameter_of, refit, scan, sensitivity,
 )
 from pipeline.discover.measurement import Measurement
 from pipeline.discover.residuals import events, noise_floor, residuals
 from pipeline.model.effects import CATALOGUE, Effect
 
-MIN_GAIN_FLOORS = 0.5        # held-out MSE removed, in noise variances
+MIN_GAIN_FLOORS = 1.0        # held-out MSE removed, in noise variances
 MIN_HELDOUT_SHARE = 0.5      # share of held-out structure removed
 MAX_WORSENING_FLOORS = 0.5   # no signal may get worse than this on held-out data
 MAX_DELTA_BIC = -10.0        # "strong" evidence on Kass & Raftery's scale
 SIGNATURE_SHRINK = 0.5       # the motivating pattern must at least halve ...
 SIGNATURE_NOISE = 3.0        # ... or fall to this many noise variances
 STRUCTURE_FLOORS = 25.0      # residual MSE above this many noise variances is structure
+AT_NOISE_FLOORS = 3.0        # after an effect, stop when every signal is within this of its noise floor
 NEAR_TIE = 2.0              # runner-up leaves at most twice the winner's held-out structure (+1 noise variance)
 MAX_EFFECTS = 3
 FULL_FITS = (4, 3, 3)        # per round, how many of the best-scanning candidates get the full assessment
@@ -150,9 +151,9 @@ def _after(n: int, starts: np.ndarray, width: int) -> np.ndarray:
 
 def assess(ev: Evaluator, meas: Measurement, effects: tuple[Effect, ...], name: str,
            folds: tuple[np.ndarray, np.ndarray], round_: int,
-           scanned: tuple[np.ndarray, np.ndarray] | None = None) -> Assessment:
+           scanned: Scan | None = None) -> Assessment:
     fit = fit_candidate(ev, effects, name, folds, scanned=scanned)
-    trial = (*effects, fit.effect)
+    trial = fit.effects
     n_obs = meas.n * len(meas.signals)
     nll_before = ev.nll(ev.sim(effects))
     delta_bic = 2.0 * (fit.nll - nll_before) + 1.0 * np.log(n_obs)
@@ -192,20 +193,6 @@ def heldout_share(fit: Fit, floor: dict[str, float]) -> tuple[float, float, floa
     return float(min(share, 1.0)), float(max(gains.values())), float(max(-g for g in gains.values()))
 
 
-def refit_jointly(ev: Evaluator, effects: tuple[Effect, ...], sweeps: int = 2) -> tuple[Effect, ...]:
-    """Coordinate descent over the added effects' parameters, each in a bracket around its value."""
-    current = list(effects)
-    if len(current) < 2:
-        return effects
-    for _ in range(sweeps):
-        for i, e in enumerate(current):
-            others = tuple(current[:i] + current[i + 1:])
-            v = next(iter(e.parameters.values()))
-            v_new, _ = fit_value(ev, others, e.name, bracket=bracket_around(e.name, v, width=0.2))
-            current[i] = make(e.name, v_new)
-    return tuple(current)
-
-
 @dataclass
 class Selection:
     effects: tuple[Effect, ...]
@@ -233,17 +220,18 @@ def select(meas: Measurement, names: tuple[str, ...] | None = None) -> Selection
     near_tie = None
     for round_ in range(1, MAX_EFFECTS + 1):
         remaining = [n for n in names if n not in {e.name for e in effects}]
-        if not remaining:
+        if not remaining or (effects and max(excess(ev, effects).values()) < AT_NOISE_FLOORS):
             break
         nll_now = ev.nll(ev.sim(effects))
-        scans = {n: scan(ev, effects, n) for n in remaining}
-        scan_gain = {n: nll_now - float(np.min(scans[n][1])) for n in remaining}
+        base_sens = sensitivity(ev, effects) if effects else None
+        scans = {n: scan(ev, effects, n, base_sens) for n in remaining}
+        scan_gain = {n: nll_now - float(np.min(scans[n].nll)) for n in remaining}
         order = sorted(remaining, key=lambda n: -scan_gain[n])
         k = FULL_FITS[min(round_, len(FULL_FITS)) - 1]
         full = [n for n in order[:k] if scan_gain[n] > 0]
         assessed = sorted((assess(ev, meas, effects, n, folds, round_, scans[n]) for n in full),
                           key=lambda a: -a.fit.heldout_nll_gain)
-        screened = [Screened(n, round_, float(scans[n][0][np.argmin(scans[n][1])]), scan_gain[n])
+        screened = [Screened(n, round_, float(scans[n].grid[np.argmin(scans[n].nll)]), scan_gain[n])
                     for n in order if n not in full]
         rounds.append([*assessed, *screened])
         passing = [a for a in assessed if a.accepted]
@@ -260,7 +248,7 @@ def select(meas: Measurement, names: tuple[str, ...] | None = None) -> Selection
                         "heldout_nll_gain": {best.fit.name: best.fit.heldout_nll_gain,
                                              runner.fit.name: runner.fit.heldout_nll_gain},
                         "runner_up_accepted": runner.accepted}
-        effects = refit_jointly(ev, (*effects, best.fit.effect))
+        effects = refit(ev, best.fit.effects) if len(best.fit.effects) > 1 else best.fit.effects
     ex_before = excess(ev, ())
     ex_after = excess(ev, effects)
     structured = max(ex_after.values()) > STRUCTURE_FLOORS

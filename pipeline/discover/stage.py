@@ -105,11 +105,13 @@ def discovery_json(d: Discovery, recording: str) -> dict:
         "run": d.meas.name,
         "effects": [_effect_json(e, sel) for e in d.effects],
         "verdict": d.verdict,
-        "mse_before": d.mse_before["closed_loop"],
-        "mse_after": d.mse_after["closed_loop"],
-        "mse_before_replay": d.mse_before["replay"],
-        "mse_after_replay": d.mse_after["replay"],
-        "mse_way": "closed_loop (the paper's free run); *_replay: the logged command drives the model",
+        "mse_before": d.mse_before["replay"],
+        "mse_after": d.mse_after["replay"],
+        "mse_before_closed_loop": d.mse_before["closed_loop"],
+        "mse_after_closed_loop": d.mse_after["closed_loop"],
+        "mse_way": ("replay: the logged command drives the model, as validation's replay way; "
+                    "*_closed_loop: the model's own guard decides (the paper's free run), which jumps "
+                    "when a simulated switch slips by one control period"),
         "closed_loop_confirmed": d.closed_loop_confirmed,
         "candidates": candidates,
         "near_tie": sel.near_tie,
