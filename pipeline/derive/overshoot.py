@@ -22,7 +22,7 @@ from pipeline.derive.phases import reversal_indices
 from pipeline.derive.stats import describe
 
 TURN_FIT_HALF = 2            # samples each side of the extreme sample in the vertex fit
-DRIFT_LIMIT_RAD = 0.03       # rad: a trend in turning angle larger than this over the run is flagged (3 % of the guard)
+DRIFT_LIMIT_RAD = 0.03       # rad: a centre shift larger than this over the run is flagged (3 % of the guard)
 
 OVERSHOOT_COLUMNS = ["crossing", "direction", "trigger_sample", "trigger_t_s", "trigger_theta_rad",
                      "trigger_excess_rad", "at_guard", "turned", "turn_t_s", "turn_theta_rad", "overshoot_rad",
@@ -123,36 +123,60 @@ def _trend(times: np.ndarray, values: np.ndarray) -> tuple[float, bool]:
     return float(coef[0] * np.ptp(times)), bool(abs(coef[0]) > 3 * se)
 
 
-def overshoot_summary(table: pd.DataFrame, guard_rad: float, period_s: float, dir_logged: bool) -> dict:
-    """Statistics per direction (mean, spread, max) and the drift / guard-offset flags.
+SETTLING_TURNS = 2           # turning-point pairs left out of the centre trend: the swing from rest is lopsided
 
-    The first reversal at each guard is left out of the trend: the run starts
-    from rest and its first swing is larger than the steady ones.
+
+def centre_drift(table: pd.DataFrame) -> tuple[float, bool, int]:
+    """Trend of the oscillation centre over the run: (change in rad, significant, points used).
+
+    The centre of two successive turns, (theta_turn[i] + theta_turn[i+1]) / 2,
+    moves when counts are lost or gained (encoder slip, a miscounting
+    decoder) but not when the amplitude settles after the start or under
+    friction -- which moves the overshoot at both guards the same way and
+    would fool a trend on the overshoot itself.
+    """
+    turns = table[table["turned"]].sort_values("turn_t_s")
+    th, tt = turns["turn_theta_rad"].to_numpy(float), turns["turn_t_s"].to_numpy(float)
+    centre, when = (th[:-1] + th[1:]) / 2.0, (tt[:-1] + tt[1:]) / 2.0
+    centre, when = centre[SETTLING_TURNS:], when[SETTLING_TURNS:]
+    change, significant = _trend(when, centre)
+    return change, significant, int(len(centre))
+
+
+def overshoot_summary(table: pd.DataFrame, guard_rad: float, period_s: float, dir_logged: bool) -> dict:
+    """Statistics per direction (mean, spread, max), the overshoot trend, and the drift / guard-offset flags.
+
+    ``trend_rad`` per direction is the straight-line change of the overshoot
+    over the run (the first reversal at each guard, a swing from rest, left
+    out): settling and friction show there.  The drift flag looks at the
+    oscillation centre instead (``centre_drift``).
     """
     out: dict = {"guard_rad": guard_rad, "crossings": int(len(table)), "directions": {}, "flags": []}
     for d, name in ((1, "upper"), (-1, "lower")):
         sub = table[table["direction"] == d]
         steady = sub[sub["turned"]].iloc[1:]
-        drift, significant = _trend(steady["turn_t_s"].to_numpy(float), steady["overshoot_rad"].to_numpy(float))
+        trend, _ = _trend(steady["turn_t_s"].to_numpy(float), steady["overshoot_rad"].to_numpy(float))
         out["directions"][name] = {
             "overshoot_rad": describe(sub["overshoot_rad"]),
             "trigger_excess_rad": describe(sub["trigger_excess_rad"]),
             "turn_delay_s": describe(sub["turn_delay_s"]),
             "current_reversal_delay_s": describe(sub["current_reversal_delay_s"]),
-            "drift_rad": drift,
-            "drifting": bool(significant and abs(drift) > DRIFT_LIMIT_RAD),
+            "trend_rad": trend,
         }
-        if out["directions"][name]["drifting"]:
-            out["flags"].append(f"{name} turning angle drifts by {drift:+.3f} rad over the run "
-                                "(encoder slip or counts_per_rev error?)")
+    drift, significant, used = centre_drift(table)
+    out["centre_drift_rad"] = drift
+    out["drift_flag"] = bool(significant and abs(drift) > DRIFT_LIMIT_RAD)
+    if out["drift_flag"]:
+        out["flags"].append(f"the oscillation centre drifts by {drift:+.3f} rad over the run ({used} turn pairs): "
+                            "counts lost or gained (encoder slip?)")
+    out["guard_offset_flag"] = False
     if dir_logged and len(table):
         # the sketch reverses at the first sample past its guard: within one sample's travel beyond it
         reach = np.abs(table["trigger_omega_rad_s"].to_numpy(float)) * period_s * 1.5 + 0.01
         excess = table["trigger_excess_rad"].to_numpy(float)
         off = (excess < -0.01) | (excess > reach)
-        if off.mean() > 0.5:
+        out["guard_offset_flag"] = bool(off.mean() > 0.5)
+        if out["guard_offset_flag"]:
             out["flags"].append(f"logged reversals at a median {np.median(np.abs(table['trigger_theta_rad'])):.3f} rad, "
                                 f"guard is {guard_rad:.3f} rad (check encoder.counts_per_rev and controller.guard_rad)")
-    out["drift_flag"] = any("drifts" in f for f in out["flags"])
-    out["guard_offset_flag"] = any("logged reversals" in f for f in out["flags"])
     return out

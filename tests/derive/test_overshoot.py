@@ -81,8 +81,17 @@ def test_encoder_slip_is_flagged_as_drift():
     sig = sig.assign(counts=sig["counts"] + slip)
     sig = sig.assign(theta_rad=2 * np.pi * sig["counts"] / cfg.encoder.counts_per_rev).drop(columns=["dir", "mode"])
     s = derive_tables(sig, cfg).summary["overshoot"]
-    assert s["drift_flag"]
+    # the centre trend spans the turns after settling (about 2/3 of the run): part of the 80 counts
+    assert s["drift_flag"] and 0.03 < s["centre_drift_rad"] < 80 * COUNT
     assert any("drifts" in f for f in s["flags"])
+
+
+@pytest.mark.parametrize("effects", [(make_effect("coulomb_friction", {"Tc": 6e-4}),),
+                                     (make_effect("backlash", {"gap": 0.1}),)], ids=["coulomb", "backlash"])
+def test_settling_amplitude_is_not_drift(effects):
+    sig, cfg, _ = rig_run(RigSetup(effects=effects), seed=4)
+    s = derive_tables(sig.drop(columns=["dir", "mode"]), cfg).summary["overshoot"]
+    assert not s["drift_flag"] and s["flags"] == []
 
 
 def test_wrong_counts_per_rev_is_flagged_at_the_logged_reversals():
