@@ -114,8 +114,9 @@ def derive_tables(signals: pd.DataFrame, cfg: RigConfig) -> DerivedTables:
         not_computed["energy"] = "no current column: energy not computed"
     else:
         u = applied_voltage(t, dirs, spec.v_drive, spec.Td)
-        energy = energy_terms(t, smooth, omega, theta, u, spec, v_rms=spec.v_drive, period_s=spec.period_s)
-        energy["energy_paper_logged_current_j"] = paper_energy_j(current, spec.v_drive, spec.period_s)
+        # V_RMS is the supply's 6 V (Sec. IV-C: energy drawn), as in ``pdr simulate``; u is what the motor sees
+        energy = energy_terms(t, smooth, omega, theta, u, spec, v_rms=cfg.drive.v_in, period_s=spec.period_s)
+        energy["energy_paper_logged_current_j"] = paper_energy_j(current, cfg.drive.v_in, spec.period_s)
 
     modes = [MODE_OF_DIR[int(d)] for d in phases["dir"]]
     summary = {
