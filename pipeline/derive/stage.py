@@ -121,6 +121,9 @@ def derive_tables(signals: pd.DataFrame, cfg: RigConfig) -> DerivedTables:
     modes = [MODE_OF_DIR[int(d)] for d in phases["dir"]]
     summary = {
         "samples": int(len(t)),
+        "counts": {"samples": int(len(t)), "phases": int(len(phases)), "reversals": int(len(over)),
+                   "turns_observed": int(over["turned"].sum()), "cycles": int(len(cycles)),
+                   "encoder_counts_span": int(round(span / count_rad))},
         "duration_s": float(t[-1] - t[0]),
         "sample_interval_s": describe(np.diff(t)),
         "velocity": {"default": DEFAULT_ESTIMATOR, "window_samples": SAVGOL_WINDOW, "order": SAVGOL_ORDER,

@@ -101,6 +101,7 @@ def test_derive_run_writes_schema_tables_and_summary_deterministically(tmp_path)
     assert set(ENERGY_KEYS) <= set(summary["energy"])
     assert summary["cycles"]["n_cycles"] >= 5 and 3.0 < summary["cycles"]["period_s"]["mean"] < 4.5
     assert summary["not_computed"] == {}
+    assert summary["counts"]["reversals"] == summary["phases"]["switches"] == summary["phases"]["count"] - 2
     assert json.loads(paths.summary.read_text()) == summary
     derive_run(paths)
     assert {n: getattr(paths, n).read_bytes() for n in (*TABLES, "summary")} == first
