@@ -50,11 +50,21 @@ class DerivedTables:
     summary: dict[str, Any]
 
 
-def _check_time(signals: pd.DataFrame) -> np.ndarray:
+def sample_times(signals: pd.DataFrame, period_s: float, notes: list[str]) -> np.ndarray:
+    """The time axis to differentiate on: the logged one, or the nominal one when the timer never advanced.
+
+    A board whose timer is stuck (every step 0, a known serial-capture defect)
+    still logged a usable angle at its loop rate; anything else that does not
+    increase strictly is refused, naming the line.
+    """
     if len(signals) == 0:
         raise PdrError("signals table has no samples: nothing to derive", key="t_s")
     t = signals["t_s"].to_numpy(dtype=float)
-    bad = np.flatnonzero(np.diff(t) <= 0)
+    steps = np.diff(t)
+    if len(steps) and np.all(steps == 0):
+        notes.append(f"timer stuck (t_s never advances): the nominal period {period_s:g} s is used as the time axis")
+        return np.arange(len(t)) * period_s
+    bad = np.flatnonzero(steps <= 0)
     if len(bad):
         k = int(bad[0]) + 1
         line = int(signals["line"].iloc[k]) if "line" in signals else None
@@ -65,13 +75,13 @@ def _check_time(signals: pd.DataFrame) -> np.ndarray:
 
 def derive_tables(signals: pd.DataFrame, cfg: RigConfig) -> DerivedTables:
     """All derived tables of one run (pure)."""
-    t = _check_time(signals)
-    theta = signals["theta_rad"].to_numpy(dtype=float)
-    current = signals["current_a"].to_numpy(dtype=float) if "current_a" in signals else None
     spec = cfg.plant_spec()
     guard = spec.guard_rad
     not_computed: dict[str, str] = {}
     notes: list[str] = []
+    t = sample_times(signals, spec.period_s, notes)
+    theta = signals["theta_rad"].to_numpy(dtype=float)
+    current = signals["current_a"].to_numpy(dtype=float) if "current_a" in signals else None
 
     omega_b = backward_difference(t, theta)
     omega_sg = savgol_velocity(t, theta)

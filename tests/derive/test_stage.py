@@ -164,6 +164,10 @@ def test_refusals_name_the_problem(tmp_path):
     bad = pd.DataFrame({"t_s": [0.0, 0.05, 0.05], "theta_rad": [0.0] * 3, "line": [2, 3, 4]})
     with pytest.raises(PdrError, match=r"line 4.*t_s.*increase"):
         derive_tables(bad, default_config())
+    stuck = pd.DataFrame({"t_s": np.zeros(50), "theta_rad": 0.01 * np.arange(50)})
+    s = derive_tables(stuck, default_config()).summary
+    assert s["duration_s"] == pytest.approx(49 * 0.05) and any("timer stuck" in n for n in s["notes"])
+    assert s["omega_rad_s"]["mean"] == pytest.approx(0.2)
     with pytest.raises(PdrError, match="pdr ingest"):
         derive_run(RunPaths(tmp_path / "missing"))
 
