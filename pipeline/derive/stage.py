@@ -50,7 +50,7 @@ class DerivedTables:
     summary: dict[str, Any]
 
 
-def sample_times(signals: pd.DataFrame, period_s: float, notes: list[str]) -> np.ndarray:
+def time_axis(signals: pd.DataFrame, period_s: float, notes: list[str]) -> np.ndarray:
     """The time axis to differentiate on: the logged one, or the nominal one when the timer never advanced.
 
     A board whose timer is stuck (every step 0, a known serial-capture defect)
@@ -79,7 +79,7 @@ def derive_tables(signals: pd.DataFrame, cfg: RigConfig) -> DerivedTables:
     guard = spec.guard_rad
     not_computed: dict[str, str] = {}
     notes: list[str] = []
-    t = sample_times(signals, spec.period_s, notes)
+    t = time_axis(signals, spec.period_s, notes)
     theta = signals["theta_rad"].to_numpy(dtype=float)
     current = signals["current_a"].to_numpy(dtype=float) if "current_a" in signals else None
 
@@ -113,7 +113,7 @@ def derive_tables(signals: pd.DataFrame, cfg: RigConfig) -> DerivedTables:
         why = (f"the angle never reached a guard (max |theta| = {max_abs:.3f} rad, guard {guard:.3f} rad)"
                if max_abs < guard else "the command never reversed")
         not_computed["overshoot"] = why
-        if max_abs < guard and _turns_without_guard(omega, count_rad):
+        if max_abs < guard and _turns_without_guard(omega, count_rad, spec.period_s):
             notes.append("the pinion reverses without reaching the guard: check encoder.counts_per_rev "
                          "and controller.guard_rad against the sketch")
     if len(cycles) == 0:
@@ -159,11 +159,11 @@ def derive_tables(signals: pd.DataFrame, cfg: RigConfig) -> DerivedTables:
     return DerivedTables(kinematics, phases, over, cycles, _json_safe(summary))
 
 
-def _turns_without_guard(omega: np.ndarray, count_rad: float) -> bool:
+def _turns_without_guard(omega: np.ndarray, count_rad: float, period_s: float) -> bool:
     """Clear velocity reversals (both signs well beyond quantisation) although no guard was reached."""
     if len(omega) < 5:
         return False
-    big = np.abs(omega) > 20 * count_rad / 0.05
+    big = np.abs(omega) > 20 * count_rad / period_s            # 20 counts per sample
     signs = np.sign(omega[big])
     return bool(len(signs) and np.count_nonzero(np.diff(signs)) >= 2)
 
