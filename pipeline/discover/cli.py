@@ -1,8 +1,112 @@
-"""Placeholder until the discover stage lands."""
+"""``pdr discover``: name the effect the model is missing, add it, show the gap shrink."""
 
-from pipeline.errors import PdrError
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+DEFAULT_PROCESSED = Path("processed")
 
 
-def discover() -> None:
-    """(not built yet)"""
-    raise PdrError("the discover command is being built")
+def discover(
+    recording: str = typer.Argument(..., help="A raw CSV path (ingested and derived on the fly), "
+                                              "a processed run folder or a run name."),
+    json_out: bool = typer.Option(False, "--json", help="Print one JSON object (INTERFACE.md) on stdout."),
+    adopt: bool = typer.Option(False, "--adopt", help="Write the augmented [effects] into the recording's "
+                                                      "sidecar TOML (raw/<name>.toml). Never done without it."),
+    out: Optional[Path] = typer.Option(None, "--out", help="Folder for the report, plots, TOML snippet and "
+                                                           ".rrd [default: <processed>/discovery/<run>]."),
+    processed: Path = typer.Option(DEFAULT_PROCESSED, "--processed", help="Folder of processed runs."),
+    no_rrd: bool = typer.Option(False, "--no-rrd", help="Skip the Rerun recording."),
+) -> None:
+    """Localise where model and measurement disagree, fit every catalogued effect, keep only what
+    the evidence supports, and report the verdict (explained / none / unexplained).
+
+    Example: pdr discover raw/paper_run.csv --json    (then: pdr validate raw/paper_run.csv
+    --model processed/discovery/paper_run/effects.toml, or pdr discover raw/paper_run.csv --adopt)
+    """
+    import tempfile
+
+    from pipeline.discover.adopt import adopt as adopt_effects
+    from pipeline.discover.report import dumps, write_outputs
+    from pipeline.discover.stage import augmented_effects, discover_run
+    from pipeline.errors import PdrError
+    from pipeline.runs import resolve_runs
+
+    item = Path(recording)
+    with tempfile.TemporaryDirectory(prefix="pdr-discover-") as tmp:
+        if item.suffix.lower() == ".csv" and item.is_file():
+            from pipeline.derive.stage import derive_run
+            from pipeline.ingest.stage import ingest_recording
+
+            runs = ingest_recording(item, Path(tmp)).runs
+            for paths in runs:
+                derive_run(paths)
+            source_csv: Path | None = item
+        else:
+            runs = resolve_runs(recording, processed)
+            source_csv = _raw_source(runs[0].ingest_report)
+        if not runs:
+            raise PdrError("no usable segment in the recording", path=recording)
+        # one recording, one answer: the longest segment when the board reset mid-file
+        paths = max(runs, key=lambda p: _samples(p.kinematics))
+        d, doc = discover_run(paths, recording=str(recording))
+        if len(runs) > 1:
+            doc["segments"] = {"used": paths.name, "others": [p.name for p in runs if p != paths]}
+        root = processed if item.suffix.lower() == ".csv" or not item.is_dir() else item.parent
+        out_dir = out if out is not None else Path(root) / "discovery" / paths.name
+        written = write_outputs(out_dir, d, doc, rrd=not no_rrd)
+    if adopt:
+        if not d.effects:
+            doc["adopted"] = None
+        elif source_csv is None:
+            raise PdrError("cannot tell which raw recording this run came from; adopt by hand from "
+                           f"{written['toml']}", path=recording)
+        else:
+            doc["adopted"] = str(adopt_effects(source_csv, augmented_effects(d)))
+    if json_out:
+        typer.echo(dumps(doc))
+        return
+    typer.echo(_summary(doc))
+    typer.echo(f"report: {written['markdown']}")
+    if doc.get("adopted"):
+        typer.echo(f"adopted into {doc['adopted']}")
+    elif d.effects:
+        typer.echo(f"[effects] snippet: {written['toml']} (add --adopt to write it into the rig's TOML)")
+
+
+def _samples(path: Path) -> int:
+    import pyarrow.parquet as pq
+
+    return pq.ParquetFile(path).metadata.num_rows if path.is_file() else 0
+
+
+def _raw_source(report_path: Path) -> Path | None:
+    import json
+
+    try:
+        rec = json.loads(report_path.read_text(encoding="utf-8")).get("recording")
+    except (OSError, ValueError):
+        return None
+    src = rec.get("source") if isinstance(rec, dict) else rec
+    return Path(src) if isinstance(src, str) and Path(src).is_file() else None
+
+
+def _summary(doc: dict) -> str:
+    lines = [f"{doc['run']}: {doc['verdict']}"]
+    for e in doc["effects"]:
+        params = ", ".join(f"{k} = {v:.4g} {e['units'][k]}" for k, v in e["parameters"].items())
+        lines.append(f"  + {e['name']}: {params}")
+    for sig, b in doc["mse_before"].items():
+        a = doc["mse_after"].get(sig)
+        if b is not None and a is not None:
+            lines.append(f"  replay MSE {sig}: {b:.4g} -> {a:.4g}" + (f" ({100 * (a - b) / b:+.1f} %)" if b else ""))
+    if doc.get("near_tie"):
+        t = doc["near_tie"]
+        lines.append(f"  near tie: {t['chosen']} vs {t['runner_up']} ({t['scores']})")
+    for x in doc.get("unexplained", []):
+        lines.append(f"  unexplained: {x}")
+    lines.append(f"  {doc['seconds']:.2f} s")
+    return "\n".join(lines)

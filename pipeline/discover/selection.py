@@ -203,6 +203,7 @@ class Selection:
     excess_after: dict[str, float]        # same for the final model
     near_tie: dict | None
     simulations: int
+    failures: list[str]                   # parameter sets the simulator refused (scored as infinitely bad)
 
 
 def excess(ev: Evaluator, effects: tuple[Effect, ...]) -> dict[str, float]:
@@ -257,4 +258,5 @@ def select(meas: Measurement, names: tuple[str, ...] | None = None) -> Selection
     else:
         verdict = "explained" if effects else "none"
     return Selection(effects=effects, verdict=verdict, rounds=rounds, floor=floor, excess_before=ex_before,
-                     excess_after=ex_after, near_tie=near_tie, simulations=ev.simulations)
+                     excess_after=ex_after, near_tie=near_tie, simulations=ev.simulations,
+                     failures=ev.failures)

@@ -17,13 +17,16 @@ import numpy as np
 import pandas as pd
 
 from pipeline.config import RigConfig, effects_toml_snippet
+from pipeline.discover.candidates import make, value_of
 from pipeline.discover.measurement import Measurement, measurement_from_kinematics
 from pipeline.discover.residuals import describe, signatures
 from pipeline.discover.selection import Selection, select
 from pipeline.model.effects import Effect
 from pipeline.model.simulate import SimResult
+from pipeline.runs import RunPaths, load_config
 from pipeline.validate.compare import simulate_both
 from pipeline.validate.metrics import mse_only, signal_errors
+from pipeline.validate.stage import finite_or_none, load_kinematics
 
 WAYS = ("closed_loop", "replay")
 
@@ -78,6 +81,25 @@ def discover(kin: pd.DataFrame, config: RigConfig, name: str) -> Discovery:
                      seconds=time.perf_counter() - t0)
 
 
+def merge_effects(existing: tuple[Effect, ...], found: tuple[Effect, ...]) -> tuple[Effect, ...]:
+    """The augmented model's whole effect list: the rig's own effects plus what was found, one entry
+    per name (a TOML table cannot repeat a key): parameters add, spring scales multiply (as stacking
+    them in ``build_spec`` does)."""
+    merged: dict[str, Effect] = {e.name: e for e in existing}
+    for e in found:
+        if e.name in merged:
+            old = value_of(merged[e.name])
+            new = old * value_of(e) if e.name == "spring_stiffness" else old + value_of(e)
+            merged[e.name] = make(e.name, new)
+        else:
+            merged[e.name] = e
+    return tuple(merged.values())
+
+
+def augmented_effects(d: "Discovery") -> tuple[Effect, ...]:
+    return merge_effects(d.meas.config.effects, d.effects)
+
+
 def _effect_json(e: Effect, sel: Selection) -> dict:
     out = e.to_json()
     for rnd in sel.rounds:
@@ -120,11 +142,22 @@ def discovery_json(d: Discovery, recording: str) -> dict:
         "structure_after": sel.excess_after,
         "localisation_before": d.localisation_before,
         "localisation_after": d.localisation_after,
-        "effects_toml": effects_toml_snippet(d.effects) if d.effects else "",
+        "effects_toml": effects_toml_snippet(augmented_effects(d)) if d.effects else "",
         "dir_source": d.meas.dir_source,
         "simulations": sel.simulations,
         "seconds": round(d.seconds, 3),
     }
     if d.verdict == "unexplained":
         out["unexplained"] = unexplained_text(d)
-    return out
+    if d.selection.failures:
+        out["simulation_failures"] = len(d.selection.failures)
+    return finite_or_none(out)
+
+
+# ------------------------------------------------------------------ shell
+
+def discover_run(paths: RunPaths, recording: str | None = None) -> tuple[Discovery, dict]:
+    """Discovery on one processed (ingested and derived) run."""
+    kin = load_kinematics(paths)
+    d = discover(kin, load_config(paths), paths.name)
+    return d, discovery_json(d, recording if recording is not None else str(paths.root))

@@ -1,0 +1,219 @@
+"""What discovery hands back: JSON, an ``[effects]`` TOML snippet, a Markdown report with
+PNG plots, and a Rerun recording with measurement, base and augmented model overlaid.
+
+Everything is rendered from a ``Discovery`` (pure functions returning text or bytes);
+``write_outputs`` is the only function that touches the disk, atomically.  PNGs carry
+no timestamp or version metadata, so a re-run gives identical bytes.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.config import effects_toml_snippet
+from pipeline.discover.stage import Discovery, augmented_effects
+from pipeline.io.atomic import atomic_path, write_bytes, write_json, write_text
+
+FILES = {"json": "discovery.json", "toml": "effects.toml", "markdown": "report.md",
+         "signals_png": "signals.png", "residuals_png": "residuals.png", "candidates_png": "candidates.png",
+         "rrd": "discovery.rrd"}
+_SIGNALS = (("theta", "theta_rad", "theta", "rad"), ("omega", "omega_rad_s", "omega", "rad/s"),
+            ("current", "current_a", "current_measured", "A"))
+_COLORS = {"measured": "0.25", "base": "tab:orange", "augmented": "tab:blue"}
+
+
+def _measured(d: Discovery, column: str) -> np.ndarray | None:
+    kin = d.meas.kinematics
+    return kin[column].to_numpy(dtype=float, na_value=np.nan) if column in kin.columns else None
+
+
+def _png(fig) -> bytes:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=90, metadata={"Software": None})
+    return buf.getvalue()
+
+
+def signals_png(d: Discovery, way: str = "replay") -> bytes:
+    """Measured, base model and augmented model per signal, on one time axis."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(10, 7.5))
+    axes = fig.subplots(3, 1, sharex=True)
+    t = d.meas.t
+    for ax, (sig, column, field, unit) in zip(axes, _SIGNALS):
+        y = _measured(d, column)
+        if y is not None:
+            ax.plot(t, y, color=_COLORS["measured"], lw=1.4, label="measured")
+        ax.plot(t, getattr(d.base[way], field), color=_COLORS["base"], lw=1.0, label="base model")
+        if d.effects:
+            ax.plot(t, getattr(d.final[way], field), color=_COLORS["augmented"], lw=1.0, ls="--",
+                    label="augmented model")
+        ax.set_ylabel(f"{sig} [{unit}]")
+        ax.grid(alpha=0.3)
+    axes[0].legend(loc="upper right", fontsize=8)
+    axes[-1].set_xlabel("t [s]")
+    fig.suptitle(f"{d.meas.name}: {d.verdict} ({way.replace('_', ' ')})")
+    return _png(fig)
+
+
+def residuals_png(d: Discovery, way: str = "replay") -> bytes:
+    """Residual (measured - model) before and after, per signal."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(10, 7.5))
+    axes = fig.subplots(3, 1, sharex=True)
+    t = d.meas.t
+    for ax, (sig, column, field, unit) in zip(axes, _SIGNALS):
+        y = _measured(d, column)
+        if y is None:
+            ax.set_ylabel(f"{sig}: not logged")
+            continue
+        ax.plot(t, y - getattr(d.base[way], field), color=_COLORS["base"], lw=1.0,
+                label=f"before (MSE {d.mse_before[way].get(sig, float('nan')):.3g})")
+        ax.plot(t, y - getattr(d.final[way], field), color=_COLORS["augmented"], lw=1.0,
+                label=f"after (MSE {d.mse_after[way].get(sig, float('nan')):.3g})")
+        ax.axhline(0.0, color="0.5", lw=0.6)
+        ax.set_ylabel(f"residual {sig} [{unit}]")
+        ax.legend(loc="upper right", fontsize=8)
+        ax.grid(alpha=0.3)
+    axes[-1].set_xlabel("t [s]")
+    fig.suptitle(f"{d.meas.name}: residuals before and after ({way.replace('_', ' ')})")
+    return _png(fig)
+
+
+def candidates_png(d: Discovery) -> bytes:
+    """Each candidate's share of held-out structure removed, per round, accepted ones filled."""
+    from matplotlib.figure import Figure
+
+    rounds = d.selection.rounds
+    fig = Figure(figsize=(10, 1.0 + 2.4 * max(len(rounds), 1)))
+    axes = fig.subplots(max(len(rounds), 1), 1, squeeze=False)[:, 0]
+    for ax, rnd in zip(axes, rounds):
+        names = [a.fit.name if hasattr(a, "fit") else a.name for a in rnd]
+        scores = [max(a.score, 0.0) for a in rnd]
+        colors = ["tab:green" if a.accepted else "0.7" for a in rnd]
+        ax.barh(names[::-1], scores[::-1], color=colors[::-1])
+        ax.set_xlim(0, 1.05)
+        ax.set_title(f"round {rnd[0].round}: share of held-out structure removed (green: all evidence holds)",
+                     fontsize=9)
+        ax.tick_params(labelsize=8)
+    fig.tight_layout()
+    return _png(fig)
+
+
+def _fmt(v: float) -> str:
+    return "-" if v is None or not np.isfinite(v) else f"{v:.4g}"
+
+
+def markdown(d: Discovery, doc: dict) -> str:
+    """The static report for people who do not open the viewer."""
+    lines = [f"# Discovery: {d.meas.name}", "", f"Recording: `{doc['recording']}`  ",
+             f"Verdict: **{d.verdict}**  ", f"Time: {doc['seconds']:.2f} s, {doc['simulations']} simulations", ""]
+    if d.effects:
+        lines += ["## Effects added (in the order found)", "", "| effect | parameter | value | ~95 % interval | unit |",
+                  "|---|---|---|---|---|"]
+        for e in doc["effects"]:
+            for p, v in e["parameters"].items():
+                lo, hi = e.get("interval", {}).get(p, [float("nan")] * 2)
+                lines.append(f"| `{e['name']}` | {p} | {_fmt(v)} | [{_fmt(lo)}, {_fmt(hi)}] | {e['units'][p]} |")
+        lines += ["", "Adopt into the rig's TOML (`pdr discover RECORDING --adopt` does it for you):", "",
+                  "```toml", doc["effects_toml"].rstrip(), "```", ""]
+    lines += ["## MSE before and after", "", "| way | signal | before | after | change |", "|---|---|---|---|---|"]
+    for way in ("replay", "closed_loop"):
+        for sig, b in d.mse_before[way].items():
+            a = d.mse_after[way].get(sig, float("nan"))
+            change = f"{100 * (a - b) / b:+.1f} %" if b else "-"
+            lines.append(f"| {way.replace('_', ' ')} | {sig} | {_fmt(b)} | {_fmt(a)} | {change} |")
+    lines += ["", f"Closed loop confirms: {'yes' if d.closed_loop_confirmed else 'no'} "
+              "(free runs jump when a simulated switch slips by one control period; replay is the fair measure).", ""]
+    if doc.get("near_tie"):
+        t = doc["near_tie"]
+        lines += [f"**Near tie** in round {t['round']}: `{t['chosen']}` vs `{t['runner_up']}`, scores "
+                  + ", ".join(f"{k} {v:.3f}" for k, v in t["scores"].items()) + ".", ""]
+    if doc.get("unexplained"):
+        lines += ["## Unexplained structure", ""] + [f"- {x}" for x in doc["unexplained"]] + [""]
+    lines += ["## Where the base model disagrees (replay residuals)", ""]
+    lines += [f"- {x}" for x in d.localisation_before] or ["- nothing above the noise floor"]
+    lines += ["", "## After", ""] + ([f"- {x}" for x in d.localisation_after] or ["- nothing"])
+    lines += ["", "## Candidates", "",
+              "| round | candidate | score | value | ~95 % interval | delta BIC | failed checks |",
+              "|---|---|---|---|---|---|---|"]
+    for c in doc["candidates"]:
+        p, v = next(iter(c["parameters"].items()))
+        lo, hi = c.get("interval", {}).get(p, [float("nan")] * 2)
+        failed = "screened out by the coarse scan" if c.get("screened_out") else \
+            ", ".join(k for k, ok in c["checks"].items() if not ok) or "none (accepted)"
+        lines.append(f"| {c['round']} | `{c['name']}` | {c['score']:.3f} | {p} = {_fmt(v)} | "
+                     f"[{_fmt(lo)}, {_fmt(hi)}] | {_fmt(c.get('delta_bic', float('nan')))} | {failed} |")
+    lines += ["", "Score: share of the held-out structure (MSE above the noise floor) the candidate removes.", "",
+              f"![signals]({FILES['signals_png']})", "", f"![residuals]({FILES['residuals_png']})", "",
+              f"![candidates]({FILES['candidates_png']})", ""]
+    return "\n".join(lines)
+
+
+def _rrd_blueprint():
+    import rerun.blueprint as rrb
+
+    def series(name: str, origin: str) -> rrb.TimeSeriesView:
+        return rrb.TimeSeriesView(origin=origin, name=name)
+
+    return rrb.Blueprint(rrb.Horizontal(
+        rrb.Vertical(*(series(f"{s} [{u}]", f"/signals/{s}") for s, _c, _f, u in _SIGNALS)),
+        rrb.Vertical(*(series(f"residual {s} [{u}]", f"/residuals/{s}") for s, _c, _f, u in _SIGNALS),
+                     rrb.TextDocumentView(origin="/report", name="report")),
+    ), auto_views=False)
+
+
+def write_rrd(target: Path, d: Discovery, report_md: str, way: str = "replay") -> None:
+    """Measurement, base and augmented model overlaid, and the residual before/after, saved
+    atomically and checked with ``rerun rrd verify``."""
+    import rerun as rr
+
+    from pipeline.validate.rerun_log import _scalars, verify_rrd
+
+    t = d.meas.t
+    colors = {"measured": (200, 200, 200), "base": (255, 140, 0), "augmented": (0, 170, 255)}
+    with atomic_path(Path(target)) as tmp:
+        rec = rr.RecordingStream("pdr-discover", recording_id=f"discover-{d.meas.name}")
+        rec.save(tmp, default_blueprint=_rrd_blueprint())
+        for sig, column, field, _unit in _SIGNALS:
+            y = _measured(d, column)
+            if y is not None:
+                _scalars(rec, f"signals/{sig}/measured", t, y, "measured", colors["measured"], 2.0)
+            models = {"base": d.base[way], "augmented": d.final[way]}
+            for label, sim in models.items():
+                _scalars(rec, f"signals/{sig}/{label}", t, getattr(sim, field), f"{label} model", colors[label])
+                if y is not None:
+                    _scalars(rec, f"residuals/{sig}/{'before' if label == 'base' else 'after'}", t,
+                             y - getattr(sim, field), f"{'before' if label == 'base' else 'after'}", colors[label])
+        rec.log("report", rr.TextDocument(report_md, media_type=rr.MediaType.MARKDOWN), static=True)
+        rec.flush()
+        rec.disconnect()
+        verify_rrd(tmp)
+
+
+def write_outputs(out_dir: Path, d: Discovery, doc: dict, *, rrd: bool = True) -> dict[str, Path]:
+    """Every output of one discovery into ``out_dir`` (atomic writes); returns the paths."""
+    out_dir = Path(out_dir)
+    paths = {k: out_dir / v for k, v in FILES.items()}
+    write_json(paths["json"], doc)
+    write_text(paths["toml"], effects_toml_snippet(augmented_effects(d)))
+    write_bytes(paths["signals_png"], signals_png(d))
+    write_bytes(paths["residuals_png"], residuals_png(d))
+    write_bytes(paths["candidates_png"], candidates_png(d))
+    md = markdown(d, doc)
+    write_text(paths["markdown"], md)
+    if rrd:
+        write_rrd(paths["rrd"], d, md)
+    else:
+        paths.pop("rrd")
+    return paths
+
+
+def dumps(doc: dict) -> str:
+    """The JSON as printed by ``pdr discover --json`` (one object, stable key order)."""
+    return json.dumps(doc, indent=2, sort_keys=True, allow_nan=False, default=float)
