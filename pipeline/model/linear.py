@@ -35,11 +35,51 @@ def step_matrices(A: np.ndarray, B: np.ndarray, h: float) -> tuple[np.ndarray, n
     return E[:3, :3], E[:3, 3]
 
 
+def phi_gamma(A: tuple[tuple[float, ...], ...], B: tuple[float, ...], h: float) -> tuple[float, ...]:
+    """(Phi row-major, Gamma) for one step, in plain floats: the same Taylor/squaring as ``expm_batch``.
+
+    The augmented matrix [[A h, B h], [0, 0]] keeps its shape under products,
+    so its exponential is carried as (P, g) with [[P, g], [0, 1]]: Horner
+    P <- I + X P / j, g <- (X g + b) / j, then squaring (P, g) <- (P P, P g + g).
+    A 3x3 in Python floats beats numpy's per-call overhead ~5x at this size,
+    which is most of a single simulation's set-up.
+    """
+    (a0, a1, a2), (a3, a4, a5), (a6, a7, a8) = A
+    norm = max(abs(a0) + abs(a1) + abs(a2) + abs(B[0]), abs(a3) + abs(a4) + abs(a5) + abs(B[1]),
+               abs(a6) + abs(a7) + abs(a8) + abs(B[2])) * abs(h)
+    s = max(0, math.ceil(math.log2(norm / 0.25))) if norm > 0.25 else 0
+    hs = h / (2.0 ** s)
+    x0, x1, x2, x3, x4, x5, x6, x7, x8 = (v * hs for v in (a0, a1, a2, a3, a4, a5, a6, a7, a8))
+    b0, b1, b2 = B[0] * hs, B[1] * hs, B[2] * hs
+    p0, p1, p2, p3, p4, p5, p6, p7, p8 = 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0
+    g0 = g1 = g2 = 0.0
+    for j in range(12, 0, -1):                  # Horner on (P, g), unrolled 3x3
+        r = 1.0 / j
+        g0, g1, g2 = ((x0 * g0 + x1 * g1 + x2 * g2 + b0) * r, (x3 * g0 + x4 * g1 + x5 * g2 + b1) * r,
+                      (x6 * g0 + x7 * g1 + x8 * g2 + b2) * r)
+        p0, p1, p2, p3, p4, p5, p6, p7, p8 = (
+            1.0 + (x0 * p0 + x1 * p3 + x2 * p6) * r, (x0 * p1 + x1 * p4 + x2 * p7) * r,
+            (x0 * p2 + x1 * p5 + x2 * p8) * r,
+            (x3 * p0 + x4 * p3 + x5 * p6) * r, 1.0 + (x3 * p1 + x4 * p4 + x5 * p7) * r,
+            (x3 * p2 + x4 * p5 + x5 * p8) * r,
+            (x6 * p0 + x7 * p3 + x8 * p6) * r, (x6 * p1 + x7 * p4 + x8 * p7) * r,
+            1.0 + (x6 * p2 + x7 * p5 + x8 * p8) * r)
+    for _ in range(s):                          # squaring: (P, g) <- (P P, P g + g)
+        g0, g1, g2 = (p0 * g0 + p1 * g1 + p2 * g2 + g0, p3 * g0 + p4 * g1 + p5 * g2 + g1,
+                      p6 * g0 + p7 * g1 + p8 * g2 + g2)
+        p0, p1, p2, p3, p4, p5, p6, p7, p8 = (
+            p0 * p0 + p1 * p3 + p2 * p6, p0 * p1 + p1 * p4 + p2 * p7, p0 * p2 + p1 * p5 + p2 * p8,
+            p3 * p0 + p4 * p3 + p5 * p6, p3 * p1 + p4 * p4 + p5 * p7, p3 * p2 + p4 * p5 + p5 * p8,
+            p6 * p0 + p7 * p3 + p8 * p6, p6 * p1 + p7 * p4 + p8 * p7, p6 * p2 + p7 * p5 + p8 * p8)
+    return (p0, p1, p2, p3, p4, p5, p6, p7, p8, g0, g1, g2)
+
+
 class StepCache:
     """Phi and Gamma per step length as flat Python floats (the fast loop's arithmetic)."""
 
     def __init__(self, A: np.ndarray, B: np.ndarray) -> None:
-        self.A, self.B = A, B
+        self.A = tuple(tuple(float(v) for v in row) for row in A)
+        self.B = tuple(float(v) for v in B)
         self._cache: dict[float, tuple[float, ...]] = {}
         self.raw: dict[float, tuple[float, ...]] = {}     # exact float -> entry, skips rounding on hits
 
@@ -50,8 +90,7 @@ class StepCache:
             key = step_key(h)
             hit = self._cache.get(key)
             if hit is None:
-                Phi, Gam = step_matrices(self.A, self.B, key)
-                hit = tuple(float(v) for v in (*Phi.ravel(), *Gam))
+                hit = phi_gamma(self.A, self.B, key)
                 self._cache[key] = hit
             self.raw[h] = hit
         return hit

@@ -154,6 +154,8 @@ def _run_linear(spec: PlantSpec, plan: _Plan, x: np.ndarray) -> tuple[np.ndarray
     """Exact ZOH stepping: x+ = Phi(h) x + Gamma(h) u0 + sum over motor changes at a of Gamma(h - a) du."""
     A, B = spec.params.state_matrices()
     steps = StepCache(A, B)
+    if plan.closed_loop and spec.Td == 0.0:
+        return _run_linear_undelayed(spec, plan, x, steps)
     cached = steps.raw
     t = plan.t.tolist()
     n = len(t)
@@ -202,6 +204,40 @@ def _run_linear(spec: PlantSpec, plan: _Plan, x: np.ndarray) -> tuple[np.ndarray
                     P[3] * I + P[4] * w + P[5] * dl + P[10] * u0 + e1,
                     P[6] * I + P[7] * w + P[8] * dl + P[11] * u0 + e2)
     return np.array(out), np.array(dirs, dtype=np.int8)
+
+
+def _run_linear_undelayed(spec: PlantSpec, plan: _Plan, x: np.ndarray, steps: StepCache):
+    """The hot path (closed loop, no loop delay): the command acts at once, u = d * v_drive."""
+    cached = steps.raw
+    Ps = [cached.get(h) or steps(h) for h in np.diff(plan.t).tolist()]
+    R, guard, V = spec.params.R, spec.guard_rad, spec.v_drive
+    I, w, dl = (float(v) for v in x)
+    d = plan.decide(0, 0, dl / R, guard)
+    u = d * V
+    out = [I, w, dl]
+    dirs = [d]
+    record, record_dir = out.extend, dirs.append
+    steps_left = iter(Ps)
+    for k, (p0, p1, p2, p3, p4, p5, p6, p7, p8, g0, g1, g2) in zip(range(1, plan.start + 1), steps_left):
+        I, w, dl = (p0 * I + p1 * w + p2 * dl + g0 * u,       # before the controller starts: the log decides
+                    p3 * I + p4 * w + p5 * dl + g1 * u,
+                    p6 * I + p7 * w + p8 * dl + g2 * u)
+        record((I, w, dl))
+        d = plan.decide(k, d, dl / R, guard)
+        u = d * V
+        record_dir(d)
+    for p0, p1, p2, p3, p4, p5, p6, p7, p8, g0, g1, g2 in steps_left:
+        I, w, dl = (p0 * I + p1 * w + p2 * dl + g0 * u,
+                    p3 * I + p4 * w + p5 * dl + g1 * u,
+                    p6 * I + p7 * w + p8 * dl + g2 * u)
+        record((I, w, dl))
+        if d > 0:                                   # next_dir, inlined (d is never 0 once started)
+            if dl / R >= guard:
+                d, u = -1, -V
+        elif dl / R <= -guard:
+            d, u = 1, V
+        record_dir(d)
+    return np.array(out, dtype=float).reshape(-1, 3), np.array(dirs, dtype=np.int8)
 
 
 def _run_events(spec: PlantSpec, plan: _Plan, x: np.ndarray, *, continuous: bool) -> tuple[np.ndarray, np.ndarray]:

@@ -1,0 +1,115 @@
+"""Fast simulator speed, each figure against a baseline measured in the same run (issue 2, "Speed").
+
+1. linear model, one 500-sample recording (millis() spacing 50/51 ms):
+   ``simulate`` vs one scipy ``solve_ivp`` call per control period
+   (DOP853, rtol 1e-10, atol 1e-12, same sampled controller) -- target >= 1000x;
+2. fitting: ``simulate_batch`` over 1000 parameter sets vs 1000 ``simulate``
+   calls -- target >= 20x (without and with loop delay / sensor offset);
+3. every effect on (Coulomb friction with stick, backlash, loop delay, sensor
+   offset, viscous friction, driver drop, rack inertia, springs): ``simulate``
+   vs the rig's reference plant ``simulate_reference`` -- target >= 50x.
+
+Every ``simulate`` call starts cold (its step matrices are built inside the
+call), so the figures include that set-up.  Times are the best of a few
+repeats (the machine is shared).  Run: python -m benchmarks.bench_model
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+
+import numpy as np
+
+from benchmarks.bench_rig import best_of
+from pipeline.config import default_config
+from pipeline.model.batch import simulate_batch
+from pipeline.model.effects import (Backlash, CoulombFriction, CurrentSensorOffset, DriverVoltageDrop, LoopDelay,
+                                    RackInertia, SpringStiffness, ViscousFriction, build_spec)
+from pipeline.model.simulate import simulate
+from pipeline.rig.plant import simulate_reference
+from tests.model.ivp_reference import jittered_times, simulate_ivp
+
+
+def _line(label: str, seconds: float, ratio: float | None = None, target: float | None = None) -> str:
+    text = f"  {label:<44}{seconds * 1e3:10.2f} ms"
+    if ratio is not None:
+        verdict = "ok" if target is None or ratio >= target else "BELOW TARGET"
+        text += f"   {ratio:8.1f}x" + (f"  (target >= {target:g}x: {verdict})" if target else "")
+    return text
+
+
+def bench_linear(t: np.ndarray) -> float:
+    spec = default_config().plant_spec()
+    base = best_of(lambda: simulate_ivp(spec, t), repeat=2)
+    fast = best_of(lambda: simulate(spec, t), repeat=20)
+    ratio = base / fast
+    print(f"1. linear model, {len(t)} samples, closed loop, sampled guard")
+    print(_line("per-period solve_ivp (rtol 1e-10)", base))
+    print(_line("simulate (matrix exponential)", fast, ratio, 1000))
+    return ratio
+
+
+def parameter_sets(n: int, delayed: bool, seed: int = 0):
+    """What a fit explores: b, J, springs and drive around Table I (optionally Td, I0)."""
+    base = default_config().plant_spec()
+    rng = np.random.default_rng(seed)
+    p = base.params
+    out = []
+    for _ in range(n):
+        s = replace(base, params=p.with_(b=p.b * rng.uniform(0.5, 2.0), J=p.J * rng.uniform(1.0, 5.0),
+                                         K1=p.K1 * rng.uniform(0.8, 1.2), K2=p.K2 * rng.uniform(0.8, 1.2)),
+                    v_drive=base.v_drive * rng.uniform(0.85, 1.0))
+        if delayed:
+            s = replace(s, Td=float(rng.uniform(0.0, 0.1)), I0=float(rng.uniform(-0.05, 0.05)))
+        out.append(s)
+    return out
+
+
+def bench_batch(t: np.ndarray, n: int = 1000) -> list[float]:
+    ratios = []
+    print(f"2. {n} parameter sets, {len(t)} samples, closed loop")
+    for delayed in (False, True):
+        specs = parameter_sets(n, delayed)
+        t0 = time.perf_counter()
+        for s in specs:
+            simulate(s, t)
+        single = time.perf_counter() - t0
+        batch = best_of(lambda: simulate_batch(specs, t), repeat=3)
+        ratio = single / batch
+        tag = "with Td, I0" if delayed else "linear"
+        print(_line(f"{n} x simulate ({tag})", single))
+        print(_line(f"simulate_batch ({tag})", batch, ratio, 20))
+        ratios.append(ratio)
+    return ratios
+
+
+def every_effect():
+    base = default_config()
+    effects = (ViscousFriction(1e-4), CoulombFriction(6e-4), DriverVoltageDrop(0.3), Backlash(0.1),
+               LoopDelay(0.03), CurrentSensorOffset(0.04), RackInertia(1e-4), SpringStiffness(1.05))
+    return build_spec(base.model, base.controller, base.drive, effects)
+
+
+def bench_every_effect(t: np.ndarray) -> float:
+    spec = every_effect()
+    ref = best_of(lambda: simulate_reference(spec, t), repeat=3)
+    fast = best_of(lambda: simulate(spec, t), repeat=20)
+    a, b = simulate(spec, t), simulate_reference(spec, t)
+    err = max(float(np.max(np.abs(a.theta - b.theta))), float(np.max(np.abs(a.current - b.current))))
+    ratio = ref / fast
+    print(f"3. every effect on, {len(t)} samples, closed loop (max |fast - reference| = {err:.1e})")
+    print(_line("reference plant (solve_ivp + events)", ref))
+    print(_line("simulate (exact, event-driven)", fast, ratio, 50))
+    return ratio
+
+
+def main() -> None:
+    t = jittered_times(500, seed=0)
+    bench_linear(t)
+    bench_batch(t)
+    bench_every_effect(t)
+
+
+if __name__ == "__main__":
+    main()
