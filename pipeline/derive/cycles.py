@@ -10,6 +10,7 @@ vertices, not the sample grid.
 
 from __future__ import annotations
 
+import numpy as np
 import pandas as pd
 
 from pipeline.derive.stats import describe
@@ -20,22 +21,24 @@ CYCLE_COLUMNS = ["cycle", "start_s", "end_s", "period_s", "theta_max_rad", "thet
 
 def cycle_table(overshoot: pd.DataFrame) -> pd.DataFrame:
     """One row per complete cycle (schemas/cycles.json): upper turn -> lower turn -> upper turn."""
-    turns = overshoot[overshoot["turned"]].sort_values("turn_t_s")
-    ups = turns[turns["direction"] == 1]
-    downs = turns[turns["direction"] == -1]
-    rows = []
-    up_t, up_th = ups["turn_t_s"].to_numpy(float), ups["turn_theta_rad"].to_numpy(float)
-    down_t, down_th = downs["turn_t_s"].to_numpy(float), downs["turn_theta_rad"].to_numpy(float)
+    turned = overshoot["turned"].to_numpy(bool)
+    tt = overshoot["turn_t_s"].to_numpy(float)[turned]
+    th = overshoot["turn_theta_rad"].to_numpy(float)[turned]
+    up = overshoot["direction"].to_numpy()[turned] == 1
+    up_t, up_th, down_t, down_th = tt[up], th[up], tt[~up], th[~up]
+    keep, lows = [], []
     for a in range(len(up_t) - 1):
-        between = (down_t > up_t[a]) & (down_t < up_t[a + 1])
-        if between.sum() != 1:
-            continue          # a turn was not seen (end of a phase cut off): no honest cycle here
-        lo = float(down_th[between][0])
-        hi = float(up_th[a])
-        rows.append({"cycle": len(rows), "start_s": float(up_t[a]), "end_s": float(up_t[a + 1]),
-                     "period_s": float(up_t[a + 1] - up_t[a]), "theta_max_rad": hi, "theta_min_rad": lo,
-                     "amplitude_rad": (hi - lo) / 2.0, "center_rad": (hi + lo) / 2.0})
-    return pd.DataFrame(rows, columns=CYCLE_COLUMNS).astype({"cycle": "int32"})
+        between = np.flatnonzero((down_t > up_t[a]) & (down_t < up_t[a + 1]))
+        if len(between) == 1:            # a turn not seen (phase cut off) leaves no honest cycle
+            keep.append(a)
+            lows.append(down_th[between[0]])
+    keep = np.asarray(keep, dtype=np.int64)
+    hi, lo = up_th[keep], np.asarray(lows, dtype=float)
+    return pd.DataFrame({
+        "cycle": np.arange(len(keep), dtype=np.int32), "start_s": up_t[keep], "end_s": up_t[keep + 1],
+        "period_s": up_t[keep + 1] - up_t[keep], "theta_max_rad": hi, "theta_min_rad": lo,
+        "amplitude_rad": (hi - lo) / 2.0, "center_rad": (hi + lo) / 2.0,
+    }, columns=CYCLE_COLUMNS)
 
 
 def cycle_summary(cycles: pd.DataFrame) -> dict:

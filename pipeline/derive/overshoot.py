@@ -20,6 +20,7 @@ import pandas as pd
 
 from pipeline.derive.phases import reversal_indices
 from pipeline.derive.stats import describe
+from pipeline.derive.tables import frame
 
 TURN_FIT_HALF = 2            # samples each side of the extreme sample in the vertex fit
 DRIFT_LIMIT_RAD = 0.03       # rad: a centre shift larger than this over the run is flagged (3 % of the guard)
@@ -107,8 +108,8 @@ def overshoot_table(t: np.ndarray, theta: np.ndarray, omega: np.ndarray, current
             "trigger_current_a": float(smooth[k]) if current is not None else np.nan,
             "current_reversal_t_s": crossing_t, "current_reversal_delay_s": crossing_t - float(t[k]),
         })
-    return pd.DataFrame(rows, columns=OVERSHOOT_COLUMNS).astype(
-        {"crossing": "int32", "direction": "int8", "trigger_sample": "int64", "at_guard": "bool", "turned": "bool"})
+    return frame(rows, OVERSHOOT_COLUMNS, {"crossing": "int32", "direction": "int8", "trigger_sample": "int64",
+                                           "at_guard": "bool", "turned": "bool"})
 
 
 def _trend(times: np.ndarray, values: np.ndarray) -> tuple[float, bool]:

@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from pipeline.derive.tables import frame
 from pipeline.model.simulate import next_dir
 
 MODE_OF_DIR = {1: 1, -1: 2, 0: 0}      # schemas/signals.json: 1 = q1, 2 = q2, 0 = motor off
@@ -125,10 +126,10 @@ def phase_table(t: np.ndarray, theta: np.ndarray, omega: np.ndarray, current: np
             "theta_extreme_rad": float(th[np.argmax(d * th)] if d != 0 else _signed_peak(th)),
             "ended_at_guard": reason == "guard", "end_reason": reason,
         })
-    return pd.DataFrame(rows, columns=PHASE_COLUMNS).astype(PHASE_DTYPES)
+    return frame(rows, PHASE_COLUMNS, PHASE_DTYPES)
 
 
 PHASE_COLUMNS = ["phase", "start_s", "end_s", "duration_s", "dir", "mode", "first_sample", "n_samples",
                  "peak_omega_rad_s", "peak_current_a", "theta_extreme_rad", "ended_at_guard", "end_reason"]
 PHASE_DTYPES = {"phase": "int32", "dir": "int8", "mode": "int8", "first_sample": "int64", "n_samples": "int64",
-                "ended_at_guard": "bool", "end_reason": "object"}
+                "ended_at_guard": "bool", "end_reason": "str"}
