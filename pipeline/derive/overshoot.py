@@ -8,9 +8,10 @@ a local quadratic on the real time axis, so it is not limited to the sample
 grid), the overshoot beyond the guard, the velocity and current at the
 trigger, and the delays to the turn and to the current's zero crossing.
 
-A rig whose turning angles drift over the run (encoder slipping, a wrong
-counts-per-revolution, a guard set in counts for another decoding) shows it
-here first, so the summary flags a trend and a trigger offset.
+A rig that loses counts (encoder slip) shows it here first as a drifting
+centre of the oscillation; a wrong counts-per-revolution, or a guard set in
+counts for another decoding, as logged reversals away from the configured
+guard.  The summary flags both (``drift_flag``, ``guard_offset_flag``).
 """
 
 from __future__ import annotations
