@@ -32,23 +32,26 @@ class ZeroEstimate:
         return {"zero_v": self.zero_v, "spread_v": self.spread_v, "samples": self.samples, "method": self.method}
 
 
-def range_violations(values: dict[str, np.ndarray], cfg: RigConfig) -> tuple[np.ndarray, list[str]]:
-    """Per row: the first range rule it breaks ('' when none); the mask of rows breaking any."""
+def range_violations(values: dict[str, np.ndarray], cfg: RigConfig) -> tuple[np.ndarray, dict[int, str]]:
+    """Mask of rows breaking a range rule, and the first rule each of those rows breaks (by row index)."""
     n = len(values["t_raw"])
-    reason = np.full(n, "", dtype=object)
     span = COUNTER_RANGE[cfg.columns.time_unit]
     t = values["t_raw"]
-    rules = [("t_raw", (t < 0) | ((t >= span) if span else np.zeros(n, bool)),
+    rules = [((t < 0) | (t >= span if span else False),
               f"time outside 0..{int(span) - 1 if span else 'inf'} {cfg.columns.time_unit}")]
     if "adc" in values:
         steps = cfg.current_sensor.adc_steps
-        rules.append(("adc", (values["adc"] < 0) | (values["adc"] >= steps),
+        rules.append(((values["adc"] < 0) | (values["adc"] >= steps),
                       f"adc outside 0..{steps - 1} (current_sensor.adc_steps = {steps})"))
     if "dir" in values:
-        rules.append(("dir", ~np.isin(values["dir"], (-1, 0, 1)), "dir not -1, 0 or 1"))
-    for _, mask, text in reversed(rules):
-        reason[mask] = text
-    bad = reason != ""
+        d = values["dir"]
+        rules.append(((d < -1) | (d > 1), "dir not -1, 0 or 1"))
+    bad = np.zeros(n, dtype=bool)
+    reason: dict[int, str] = {}
+    for mask, text in rules:
+        for i in np.flatnonzero(mask & ~bad):
+            reason[int(i)] = text
+        bad |= mask
     return bad, reason
 
 
@@ -90,10 +93,10 @@ def to_signals(values: dict[str, np.ndarray], line: np.ndarray, t_s: np.ndarray,
     """The ``signals`` table of one segment; columns a sketch does not log stay absent."""
     cols: dict[str, np.ndarray] = {
         "t_s": t_s,
-        "t_raw": values["t_raw"].astype(np.float64),
-        "line": line.astype(np.int64),
+        "t_raw": np.asarray(values["t_raw"], dtype=np.float64),
+        "line": np.asarray(line, dtype=np.int64),
         "segment": np.full(len(line), segment, dtype=np.int32),
-        "counts": values["counts"].astype(np.int64),
+        "counts": np.asarray(values["counts"], dtype=np.int64),
         "theta_rad": values["counts"] * (2.0 * np.pi / cfg.encoder.counts_per_rev),
     }
     if "adc" in values and zero is not None:
@@ -103,8 +106,8 @@ def to_signals(values: dict[str, np.ndarray], line: np.ndarray, t_s: np.ndarray,
                  "current_a": (volts - zero.zero_v) / cs.sensitivity_v_per_a}
     if "dir" in values:
         d = values["dir"].astype(np.int8)
-        cols |= {"dir": d, "mode": np.where(d == 1, 1, np.where(d == -1, 2, 0)).astype(np.int8)}
-    return pd.DataFrame(cols)
+        cols |= {"dir": d, "mode": np.array([2, 0, 1], dtype=np.int8)[d + 1]}     # dir -1, 0, 1 -> mode 2, 0, 1
+    return pd.DataFrame(cols, copy=False)
 
 
 def seconds_from_start(t_unwrapped: np.ndarray, unit: str) -> np.ndarray:

@@ -247,8 +247,65 @@ def rows_from_lines(text: pa.Array, line_numbers: np.ndarray, layout: dict[str, 
 
 # --------------------------------------------------------------------------- whole file
 
+_PLAIN = b"0123456789,-.\r\n"
+
+
+def parse_plain(data: bytes, columns: ColumnsConfig, source: str) -> ParsedFile | None:
+    """Fast path for a clean capture: ``pyarrow.csv.read_csv`` straight into typed columns.
+
+    Taken only when every byte after the header line is a digit, comma, sign,
+    point or line break, there are no blank lines, every row has the header's
+    field count, every field converts and time never goes back; anything else
+    returns None and the general path (``parse_capture``) reads the file line
+    by line, vectorised, with reasons for the lines it cannot read.
+    """
+    import pyarrow.csv as pcsv
+
+    body_start = data.find(b"\n") + 1
+    if body_start == 0 or not data.endswith(b"\n") or b"\n\n" in data or b"\n\r\n" in data:
+        return None
+    first = data[:body_start].decode("utf-8", "replace").strip(TRIM)
+    if not first or first.startswith("#"):
+        return None
+    names = header_fields(first)
+    header = not all(re.fullmatch(TIME_RE, f) for f in names)
+    body = data[body_start:] if header else data
+    if not len(body) or body.translate(None, _PLAIN):
+        return None
+    if header:
+        if columns.t_ms not in names or len(set(names)) != len(names):
+            return None
+        layout, notes = layout_from_header(names, columns, source, 1)
+    else:
+        layout, notes = positional_layout(len(names), columns, source), [f"no header: {len(names)} fields"]
+    width = len(names)
+    col_names = [f"f{j}" for j in range(width)]
+    wanted = {col_names[j]: (logical, pa.float64() if logical == "t_raw" else pa.int64())
+              for logical, j in layout.items()}
+    try:
+        table = pcsv.read_csv(pa.py_buffer(body), read_options=pcsv.ReadOptions(column_names=col_names),
+                              parse_options=pcsv.ParseOptions(quote_char=False),
+                              convert_options=pcsv.ConvertOptions(column_types={k: t for k, (_, t) in wanted.items()},
+                                                                  include_columns=list(wanted), strings_can_be_null=False,
+                                                                  null_values=[], quoted_strings_can_be_null=False))
+    except pa.ArrowInvalid:
+        return None
+    values = {wanted[k][0]: table.column(k).to_numpy() for k in wanted}
+    n = table.num_rows
+    if n == 0 or np.any(np.diff(values["t_raw"]) < 0):
+        return None
+    first_line = 2 if header else 1
+    seg = Segment(index=0, header_line=1 if header else None, layout=layout, width=width, data_lines=n,
+                  line=np.arange(first_line, first_line + n, dtype=np.int64), values=values, notes=notes)
+    return ParsedFile(segments=[seg], lines_total=n + (1 if header else 0), blank_lines=0, comment_lines=0,
+                      header_lines=[1] if header else [], quarantined=[], notes=[])
+
+
 def parse_capture(data: bytes, columns: ColumnsConfig, source: str) -> ParsedFile:
     """Bytes of one capture -> segments split at repeated headers, with every unread line reported."""
+    plain = parse_plain(data, columns, source)
+    if plain is not None:
+        return plain
     text, bad_bytes, notes = split_lines(data, source)
     n = len(text)
     length = pc.utf8_length(text).to_numpy(zero_copy_only=False)

@@ -48,7 +48,9 @@ def _quarantine(seg: Segment, bad: np.ndarray, reasons) -> None:
 def _order_time(seg: Segment, cfg: RigConfig) -> tuple[np.ndarray, int, int | None]:
     """Range rules, lone out-of-order samples; the unwrapped time, wraps, and the first backward row."""
     bad, reason = range_violations(seg.values, cfg)
-    _quarantine(seg, bad, lambda i: str(reason[i]))
+    _quarantine(seg, bad, lambda i: reason[int(i)])
+    if not (np.diff(seg.values["t_raw"]) < 0).any():        # the common case: nothing to undo
+        return seg.values["t_raw"], 0, None
     t, wraps = unwrap(seg.values["t_raw"], cfg.columns.time_unit)
     lone = lone_out_of_order(t)
     _quarantine(seg, lone, lambda i: "time out of order (a lone sample between its neighbours' times)")

