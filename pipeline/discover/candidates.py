@@ -66,6 +66,7 @@ class Evaluator:
         self.simulations = 0
         self.failures: list[str] = []
         self._x0: dict[float, tuple[float, float, float]] = {}
+        self.commands: dict[PlantSpec, np.ndarray] = {}
 
     def sim(self, effects: tuple[Effect, ...]) -> SimResult:
         spec = self.meas.spec(effects)
@@ -76,7 +77,7 @@ class Evaluator:
         if key not in self._cache:
             self.simulations += 1
             try:
-                self._cache[key] = self.meas.replay(key[0], x0)
+                self._cache[key] = self.meas.replay(key[0], x0, self.command(key[0], x0))
             except (RuntimeError, FloatingPointError, ValueError, PdrError) as err:
                 # a parameter value the simulator cannot run counts as infinitely bad, not as a crash
                 self.failures.append(f"{key}: {err}")
@@ -85,6 +86,35 @@ class Evaluator:
         if spec.I0 == 0.0:
             return base
         return replace(base, current_measured=base.current + spec.I0)
+
+    def command(self, spec: PlantSpec, x0: tuple[float, float, float]) -> np.ndarray:
+        """The command sequence to replay: the logged one, or -- when the motor's start is only
+        inferred -- the start (within ``ONSET_SHIFTS`` samples) that fits this model best over
+        the first phase.  Remembered per plant, so the final report uses the same one."""
+        k0 = self.meas.onset
+        if k0 is None:
+            return self.meas.dir
+        if spec not in self.commands:
+            m = min(k0 + ONSET_WINDOW, self.meas.n)
+            best, best_nll = self.meas.dir, float("inf")
+            for shift in ONSET_SHIFTS:
+                d = self.meas.with_onset(k0 + shift)
+                try:
+                    sim = self.meas.replay(spec, x0, d, n=m)
+                except (RuntimeError, FloatingPointError, ValueError, PdrError):
+                    continue
+                self.simulations += 1
+                nll = _nll_of(self, {s: r[:m] - v for (s, r), v in
+                                     zip(self.meas.signals.items(), _model_signals(sim, self.meas))})
+                if nll < best_nll:
+                    best, best_nll = d, nll
+            self.commands[spec] = best
+        return self.commands[spec]
+
+    def command_for(self, effects: tuple[Effect, ...]) -> np.ndarray:
+        spec = self.meas.spec(effects)
+        x0 = self.meas.x0(spec)
+        return self.command(replace(spec, I0=0.0), x0)
 
     def nll(self, sim: SimResult, mask: np.ndarray | None = None) -> float:
         """Concentrated Gaussian negative log-likelihood over the fitted signals (on ``mask``)."""
@@ -99,6 +129,17 @@ class Evaluator:
         return {s: float(np.mean((r if mask is None else r[mask]) ** 2))
                 for s, r in residuals(self.meas, sim).items()}
 
+
+def _model_signals(sim: SimResult, meas: Measurement) -> list[np.ndarray]:
+    """The simulated counterparts of ``meas.signals``, in the same order."""
+    return [sim.theta if s == "theta" else sim.current_measured for s in meas.signals]
+
+
+# A motor start inferred from the first motion can be late by a loop delay or by the time a
+# sticking pinion needs to break away (up to ~0.3 s for large Coulomb torques), or early by
+# a sample; the first phase (up to ONSET_WINDOW samples) decides.
+ONSET_SHIFTS = tuple(range(-8, 3))
+ONSET_WINDOW = 30
 
 # what a model the simulator cannot run scores: finite (Brent's method does arithmetic on it), huge
 FAILED_NLL = 1e12

@@ -10,7 +10,7 @@ whose error jumps whenever a simulated switch slips by one control period.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pandas as pd
@@ -37,6 +37,29 @@ class Measurement:
     dir_source: str                 # "logged" or "inferred"
 
     @property
+    def onset(self) -> int | None:
+        """Index of the first motor-on sample when it is only inferred (no logged command and a
+        motor-off lead-in): the derive stage dates it from the first motion, which a loop delay
+        or a sticking pinion postpone, so fitting treats it as unknown (``ONSET_SHIFTS``)."""
+        if self.dir_source != "inferred":
+            return None
+        nz = np.flatnonzero(self.dir != 0)
+        return int(nz[0]) if len(nz) and nz[0] > 0 else None
+
+    def with_onset(self, k: int) -> np.ndarray:
+        """The command sequence with the motor switched on at sample ``k`` instead."""
+        k0 = self.onset
+        d = self.dir.copy()
+        if k0 is None or k == k0:
+            return d
+        k = int(np.clip(k, 1, self.n - 1))
+        if k < k0:
+            d[k:k0] = d[k0]
+        else:
+            d[k0:k] = 0
+        return d
+
+    @property
     def n(self) -> int:
         return len(self.t)
 
@@ -61,10 +84,62 @@ class Measurement:
         model's sensor offset, so an offset candidate also corrects a misread initial current)."""
         return initial_state(self.kinematics, spec)
 
-    def replay(self, spec: PlantSpec, x0: tuple[float, float, float] | None = None) -> SimResult:
-        """The logged command drives the model (smooth in the parameters)."""
-        return simulate(spec, self.t, x0=self.x0(spec) if x0 is None else x0, dir0=_first_dir(self.dir),
-                        dir_log=self.dir, closed_loop=False)
+    def replay(self, spec: PlantSpec, x0: tuple[float, float, float] | None = None,
+               dir_log: np.ndarray | None = None, n: int | None = None) -> SimResult:
+        """The logged command (or ``dir_log``) drives the model (smooth in the parameters);
+        ``n``: only the first n samples."""
+        d = self.dir if dir_log is None else dir_log
+        m = self.n if n is None else n
+        return simulate(spec, self.t[:m], x0=self.x0(spec) if x0 is None else x0, dir0=_first_dir(d),
+                        dir_log=d[:m], closed_loop=False)
+
+    def kinematics_with(self, dir_log: np.ndarray) -> pd.DataFrame:
+        """The kinematics table with another command column (for validation's simulate_both)."""
+        if "dir" in self.kinematics.columns and np.array_equal(dir_log, self.kinematics["dir"].to_numpy()):
+            return self.kinematics
+        kin = self.kinematics.copy()
+        kin["dir"] = dir_log.astype(kin["dir"].dtype if "dir" in kin.columns else np.int8)
+        return kin
+
+
+def ambiguous_switches(meas: Measurement) -> list[int]:
+    """Samples where an inferred command may be off by one sample: the measured angle is within
+    half an encoder count of a guard, so the controller (which saw the unrounded angle, or a
+    count rounded the other way) may have decided one sample later or earlier."""
+    if meas.dir_source != "inferred":
+        return []
+    half = np.pi / meas.config.encoder.counts_per_rev
+    g = meas.config.controller.guard_rad
+    near = (np.abs(meas.theta - g) <= half) | (np.abs(meas.theta + g) <= half)
+    return [int(k) for k in np.flatnonzero(near) if 0 < k < meas.n - 1 and meas.dir[k] != 0]
+
+
+def settle_switches(meas: Measurement, nll) -> Measurement:
+    """Decide each ambiguous inferred switch (``ambiguous_switches``) by which timing the rig's
+    model replays better (``nll(measurement) -> float``), one at a time in time order."""
+    for k in ambiguous_switches(meas):
+        d = meas.dir
+        options = []
+        if d[k] != d[k - 1] and d[k - 1] != 0:          # switched at k: perhaps only at k + 1
+            alt = d.copy()
+            alt[k] = d[k - 1]
+            options.append(alt)
+        elif d[k + 1] == d[k]:                          # did not switch at k: perhaps it did
+            alt = d.copy()
+            g_sign = 1 if meas.theta[k] > 0 else -1
+            nxt = np.flatnonzero(d[k + 1:] != d[k])
+            end = k + 1 + (int(nxt[0]) if len(nxt) else meas.n - k - 1)
+            if d[k] == g_sign:                          # moving towards this guard: reverse from k on
+                alt[k:end] = -d[k]
+                options.append(alt)
+        best, best_nll = meas, nll(meas)
+        for alt in options:
+            trial = replace(meas, dir=alt)
+            value = nll(trial)
+            if value < best_nll:
+                best, best_nll = trial, value
+        meas = best
+    return meas
 
 
 def _first_dir(d: np.ndarray) -> int:
@@ -100,16 +175,18 @@ def measurement_from_kinematics(kin: pd.DataFrame, config: RigConfig, name: str)
         current = None
     d, source = _command(kin)
     if d is None:
-        raise PdrError("neither a logged 'dir' nor an inferred 'dir_inferred' column; "
+        raise PdrError("kinematics table lacks a usable 'dir' column (-1/0/1, logged or inferred); "
                        "replay needs the command sequence", path=name)
     return Measurement(name=name, config=config, kinematics=kin, t=t, theta=theta, omega=omega,
                        current=current, dir=d, dir_source=source)
 
 
 def _command(kin: pd.DataFrame) -> tuple[np.ndarray | None, str]:
-    for col, source in (("dir", "logged"), ("dir_inferred", "inferred")):
-        if col in kin.columns:
-            values = kin[col].to_numpy(dtype=float, na_value=np.nan)
-            if np.all(np.isfinite(values)) and np.all(np.isin(values, (-1, 0, 1))):
-                return values.astype(np.int8), source
-    return None, ""
+    """The derive stage's ``dir`` (logged, or inferred from the guards when ``dir_inferred``)."""
+    if "dir" not in kin.columns:
+        return None, ""
+    values = kin["dir"].to_numpy(dtype=float, na_value=np.nan)
+    if not (np.all(np.isfinite(values)) and np.all(np.isin(values, (-1, 0, 1)))):
+        return None, ""
+    inferred = "dir_inferred" in kin.columns and bool(kin["dir_inferred"].to_numpy(dtype=bool).any())
+    return values.astype(np.int8), "inferred" if inferred else "logged"

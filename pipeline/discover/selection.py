@@ -29,7 +29,7 @@ import numpy as np
 from pipeline.discover.candidates import (
     Evaluator, Fit, Scan, fit_candidate, folds_by_cycle, parameter_of, refit, scan, sensitivity,
 )
-from pipeline.discover.measurement import Measurement
+from pipeline.discover.measurement import Measurement, ambiguous_switches, settle_switches
 from pipeline.discover.residuals import events, noise_floor, residuals
 from pipeline.model.effects import CATALOGUE, Effect
 
@@ -204,6 +204,9 @@ class Selection:
     near_tie: dict | None
     simulations: int
     failures: list[str]                   # parameter sets the simulator refused (scored as infinitely bad)
+    command_before: np.ndarray            # the command replayed for the base model ...
+    command_after: np.ndarray             # ... and the final one (differ only in an inferred motor start)
+    meas: Measurement                     # the measurement fitted (inferred switches settled)
 
 
 def excess(ev: Evaluator, effects: tuple[Effect, ...]) -> dict[str, float]:
@@ -213,6 +216,10 @@ def excess(ev: Evaluator, effects: tuple[Effect, ...]) -> dict[str, float]:
 def select(meas: Measurement, names: tuple[str, ...] | None = None) -> Selection:
     """The discovery loop on one recording (replay fits; closed loop is confirmed by the caller)."""
     names = tuple(CATALOGUE) if names is None else names
+    if ambiguous_switches(meas):
+        base_spec = meas.spec()
+        probe = Evaluator(meas, noise_floor(meas, meas.replay(base_spec)))
+        meas = settle_switches(meas, lambda m: probe.nll(m.replay(base_spec)))
     floor = noise_floor(meas, meas.replay(meas.spec()))
     ev = Evaluator(meas, floor)
     folds = folds_by_cycle(meas)
@@ -259,4 +266,5 @@ def select(meas: Measurement, names: tuple[str, ...] | None = None) -> Selection
         verdict = "explained" if effects else "none"
     return Selection(effects=effects, verdict=verdict, rounds=rounds, floor=floor, excess_before=ex_before,
                      excess_after=ex_after, near_tie=near_tie, simulations=ev.simulations,
-                     failures=ev.failures)
+                     failures=ev.failures, command_before=ev.command_for(()),
+                     command_after=ev.command_for(effects), meas=meas)

@@ -69,14 +69,16 @@ def _errors(kin: pd.DataFrame, sims: dict[str, SimResult]) -> dict[str, dict[str
 def discover(kin: pd.DataFrame, config: RigConfig, name: str) -> Discovery:
     """The whole workflow on one kinematics table (no I/O)."""
     t0 = time.perf_counter()
-    meas = measurement_from_kinematics(kin, config, name)
-    sel = select(meas)
-    base = simulate_both(meas.spec(), meas.kinematics)
-    final = simulate_both(meas.spec(sel.effects), meas.kinematics) if sel.effects else base
+    sel = select(measurement_from_kinematics(kin, config, name))
+    meas = sel.meas
+    kin_b = meas.kinematics_with(sel.command_before)
+    kin_a = meas.kinematics_with(sel.command_after)
+    base = simulate_both(meas.spec(), kin_b)
+    final = simulate_both(meas.spec(sel.effects), kin_a) if sel.effects else base
     sig_b = signatures(meas, base["replay"], sel.floor)
     sig_a = signatures(meas, final["replay"], sel.floor)
     return Discovery(meas=meas, selection=sel, base=base, final=final,
-                     mse_before=_errors(meas.kinematics, base), mse_after=_errors(meas.kinematics, final),
+                     mse_before=_errors(kin_b, base), mse_after=_errors(kin_a, final),
                      localisation_before=describe(sig_b, sel.floor), localisation_after=describe(sig_a, sel.floor),
                      seconds=time.perf_counter() - t0)
 
@@ -108,6 +110,16 @@ def _effect_json(e: Effect, sel: Selection) -> dict:
                 out["interval"] = {a.fit.parameter: list(a.fit.interval)}
                 out["round"] = a.round
     return out
+
+
+def _onset_shift(d: Discovery) -> dict | None:
+    """How far the fitted motor start moved from the inferred one (None when the command was logged)."""
+    k0 = d.meas.onset
+    if k0 is None:
+        return None
+    first = lambda c: int(np.flatnonzero(c != 0)[0])  # noqa: E731
+    return {"inferred": k0, "base": first(d.selection.command_before) - k0,
+            "augmented": first(d.selection.command_after) - k0}
 
 
 def unexplained_text(d: Discovery) -> list[str]:
@@ -144,6 +156,7 @@ def discovery_json(d: Discovery, recording: str) -> dict:
         "localisation_after": d.localisation_after,
         "effects_toml": effects_toml_snippet(augmented_effects(d)) if d.effects else "",
         "dir_source": d.meas.dir_source,
+        "motor_start_shift_samples": _onset_shift(d),
         "simulations": sel.simulations,
         "seconds": round(d.seconds, 3),
     }

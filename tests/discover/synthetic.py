@@ -38,7 +38,7 @@ def synthetic_kinematics(effects: tuple[Effect, ...] = (), *, seed: int = 0, cur
     t = (t_ms - t_ms[0]) / 1000.0
     omega = np.gradient(theta, t)
     kin = pd.DataFrame({"t_s": t, "theta_rad": theta, "omega_rad_s": omega, "current_a": current,
-                        "dir": sim.dir.astype(np.int8), "dir_inferred": sim.dir.astype(np.int8)})
+                        "dir": sim.dir.astype(np.int8), "dir_inferred": np.zeros(n, dtype=bool)})
     return kin, cfg
 
 
