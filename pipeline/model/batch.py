@@ -21,7 +21,7 @@ import numpy as np
 
 from pipeline.errors import PdrError
 from pipeline.model.effects import PlantSpec
-from pipeline.model.linear import KEY_DECIMALS, augmented_batch, step_key
+from pipeline.model.linear import augmented_batch, step_key
 from pipeline.model.simulate import TIME_EPS, SimResult, _plan, simulate
 
 
@@ -33,10 +33,18 @@ class BatchResult:
     theta: np.ndarray
     omega: np.ndarray
     current: np.ndarray
-    current_measured: np.ndarray
     delta: np.ndarray
     dir: np.ndarray
-    u: np.ndarray
+    v_drive: np.ndarray          # (n_sets,) V   |u| of each set
+    I0: np.ndarray               # (n_sets,) A   current sensor offset of each set
+
+    @property
+    def current_measured(self) -> np.ndarray:
+        return self.current + self.I0[:, None]
+
+    @property
+    def u(self) -> np.ndarray:
+        return self.dir * self.v_drive[:, None]
 
     def __len__(self) -> int:
         return self.theta.shape[0]
@@ -44,8 +52,8 @@ class BatchResult:
     def result(self, i: int) -> SimResult:
         """Set ``i`` as a ``SimResult`` (what ``simulate`` would have returned)."""
         return SimResult(t=self.t, theta=self.theta[i], omega=self.omega[i], current=self.current[i],
-                         current_measured=self.current_measured[i], delta=self.delta[i], dir=self.dir[i],
-                         u=self.u[i])
+                         current_measured=self.current[i] + self.I0[i], delta=self.delta[i], dir=self.dir[i],
+                         u=self.dir[i] * self.v_drive[i])
 
 
 def simulate_batch(specs: Sequence[PlantSpec], t: np.ndarray | None = None, *, duration: float = 24.95,
@@ -61,13 +69,14 @@ def simulate_batch(specs: Sequence[PlantSpec], t: np.ndarray | None = None, *, d
     if not vectorised:
         runs = [simulate(s, plan.t, x0=x0, dir0=dir0, dir_log=dir_log, closed_loop=closed_loop, guard=guard)
                 for s in specs]
-        return _stack(plan.t, runs)
+        return _stack(plan.t, runs, specs)
     return _run_linear_batch(specs, plan, np.asarray(x0, dtype=float))
 
 
-def _stack(t: np.ndarray, runs: list[SimResult]) -> BatchResult:
+def _stack(t: np.ndarray, runs: list[SimResult], specs: list[PlantSpec]) -> BatchResult:
     return BatchResult(t=t, **{f: np.stack([getattr(r, f) for r in runs])
-                               for f in ("theta", "omega", "current", "current_measured", "delta", "dir", "u")})
+                               for f in ("theta", "omega", "current", "delta", "dir")},
+                       v_drive=np.array([s.v_drive for s in specs]), I0=np.array([s.I0 for s in specs]))
 
 
 def _next_dir(d: np.ndarray, theta: np.ndarray, guard: np.ndarray) -> np.ndarray:
@@ -92,69 +101,155 @@ def _run_linear_batch(specs: list[PlantSpec], plan, x0: np.ndarray) -> BatchResu
     Td = np.array([s.Td for s in specs])
     I0 = np.array([s.I0 for s in specs])
     delayed = bool(np.any(Td > 0.0))
-    # per step length: Phi as (3, 3, m) and Gamma as (3, m), so a step is two whole-array operations
-    cache: dict[float, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+    cache: dict[float, tuple[np.ndarray, ...]] = {}
 
     X = np.tile(x0[:, None], (1, m))              # (3, m): I, w, delta of every set
-    out = np.empty((n, 3, m))
     dirs = np.zeros((n, m), dtype=np.int8)
-    ucmd = np.zeros((n, m))                       # voltage commanded at each sample
-    u_m = np.zeros(m)                             # voltage the motor sees (delayed path)
-    applied = np.full(m, -1)                      # last command index that reached the motor
+    steps = [_entry(cache, A, B, h) for h in np.diff(t).tolist()]
+    if plan.closed_loop and not delayed:
+        out = _closed_loop_undelayed(plan, steps, X, dirs, R, guard, V)
+    else:
+        out = _general(plan, steps, X, dirs, A, B, R, guard, V, Td)
+    return BatchResult(t=t, theta=(out[:, 2, :] / R).T, omega=out[:, 1, :].T, current=out[:, 0, :].T,
+                       delta=out[:, 2, :].T, dir=dirs.T, v_drive=V, I0=I0)
+
+
+def _entry(cache: dict, A: np.ndarray, B: np.ndarray, h: float) -> tuple[np.ndarray, ...]:
+    """Per step length: Phi as (3, 3, m), Gamma as (3, m) and (m, 3), and [Phi | Gamma] as (3, 4, m)."""
+    entry = cache.get(h)
+    if entry is None:
+        key = step_key(h)
+        entry = cache.get(key)
+        if entry is None:
+            Phi, Gam = augmented_batch(A, B, key)
+            Phi_t = np.ascontiguousarray(Phi.transpose(1, 2, 0))
+            aug = np.ascontiguousarray(np.concatenate([Phi_t, Gam.T[:, None, :]], axis=1))   # (3, 4, m): [Phi | Gamma]
+            entry = (Phi_t, np.ascontiguousarray(Gam.T), Gam, aug)
+            cache[key] = entry
+        cache[h] = entry
+    return entry
+
+
+def _decide(plan, k: int, d: np.ndarray, theta: np.ndarray, guard: np.ndarray) -> np.ndarray:
+    """The controller of ``simulate._Plan.decide`` for all sets at sample k."""
+    m = len(theta)
+    if not plan.closed_loop or k < plan.start:
+        return np.full(m, int(plan.dir_log[k]), dtype=np.int64)
+    if k == plan.start:
+        if plan.first:
+            return np.full(m, plan.first, dtype=np.int64)
+        return _next_dir(np.full(m, plan.dir0, dtype=np.int64), theta, guard)
+    flip = d * theta >= guard                     # next_dir once started: d is +-1
+    return np.where(flip, -d, d) if flip.any() else d
+
+
+def _closed_loop_undelayed(plan, steps, X, dirs, R, guard, V) -> np.ndarray:
+    """The hot path: commands act at once, so u = d * V changes only where a set reverses.
+
+    States and input live in one (4, m) slab per sample, [I, w, delta, u], so a
+    step is a single einsum with [Phi | Gamma] written straight into the next slab.
+    """
+    n, m = len(dirs), len(R)
+    slab = np.empty((n, 4, m))
+    slab[0, :3] = X
     d = np.zeros(m, dtype=np.int64)
-    rows = np.arange(m)
     for k in range(n):
-        out[k] = X
-        if not plan.closed_loop or k < plan.start:
-            d = np.full(m, int(plan.dir_log[k]), dtype=np.int64)
-        elif k == plan.start:
-            d = (np.full(m, plan.first, dtype=np.int64) if plan.first
-                 else _next_dir(np.full(m, plan.dir0), X[2] / R, guard))
+        x = slab[k]
+        if k <= plan.start:
+            d = _decide(plan, k, d, x[2] / R, guard)
+            u = d * V
         else:
-            d = _next_dir(d, X[2] / R, guard)
+            flip = d * (x[2] / R) >= guard         # next_dir once started: d is +-1
+            if flip.any():
+                d = np.where(flip, -d, d)
+                u = d * V
+        x[3] = u
         dirs[k] = d
-        ucmd[k] = d * V
         if k + 1 == n:
             break
-        tk, t_next = t[k], t[k + 1]
-        h = t_next - tk
-        entry = cache.get(h)
-        if entry is None:
-            key = step_key(h)
-            entry = cache.get(key)
-            if entry is None:
-                Phi, Gam = augmented_batch(A, B, key)
-                entry = (np.ascontiguousarray(Phi.transpose(1, 2, 0)), np.ascontiguousarray(Gam.T), Gam)
-                cache[key] = entry
-            cache[h] = entry
-        Phi_t, Gam_t, Gam = entry
-        if not delayed:
-            X = (Phi_t * X[None, :, :]).sum(axis=1) + Gam_t * ucmd[k]
-            continue
-        acc = Gam_t * u_m
-        while True:
-            j = np.minimum(applied + 1, k)
-            at = t[j] + Td
-            due = (applied + 1 <= k) & (at < t_next - TIME_EPS)
-            if not due.any():
-                break
-            idx = rows[due]
-            jj = j[idx]
-            du = ucmd[jj, idx] - u_m[idx]
-            changed = du != 0.0
-            if changed.any():
-                ii, a, dv = idx[changed], at[idx][changed] - tk, du[changed]
-                G = Gam[ii].copy()
-                inside = a > TIME_EPS
-                if inside.any():
-                    G[inside] = augmented_batch(A[ii[inside]], B[ii[inside]],
-                                                np.round(h - a[inside], KEY_DECIMALS))[1]
-                acc[:, ii] += (G * dv[:, None]).T
-            u_m[idx] = ucmd[jj, idx]
-            applied[idx] += 1
-        X = (Phi_t * X[None, :, :]).sum(axis=1) + acc
-    current = out[:, 0, :].T
-    dirs_t = dirs.T
-    return BatchResult(t=t, theta=(out[:, 2, :] / R).T, omega=out[:, 1, :].T, current=current,
-                       current_measured=current + I0[:, None], delta=out[:, 2, :].T, dir=dirs_t,
-                       u=dirs_t.astype(float) * V[:, None])
+        np.einsum("ijm,jm->im", steps[k][3], x, out=slab[k + 1, :3])
+    return slab
+
+
+def _general(plan, steps, X, dirs, A, B, R, guard, V, Td) -> np.ndarray:
+    """Any controller plan with per-set loop delays.
+
+    A command change decided at t_k reaches set i's motor at s = t_k + Td_i,
+    inside some later step q: it adds ``Gamma(h_q - a) du`` to that step (a =
+    s - t_q) and ``du`` to the motor voltage held from step q + 1 on.  Both are
+    booked when the change is decided, so each step stays one einsum plus one
+    add, and the batched exponentials are only taken for the sets that changed.
+    """
+    t = plan.t
+    n, m = len(dirs), len(R)
+    gamma = _GammaOfLength(A, B)
+    slab = np.empty((n, 4, m))                     # [I, w, delta, motor voltage at the step's start]
+    slab[0, :3] = X
+    extra = np.zeros((n, m, 3))                    # Gamma(h - a) du of changes arriving inside step k
+    du_from = np.zeros((n + 1, m))                 # motor voltage changes taking effect from step k on
+    d = np.zeros(m, dtype=np.int64)
+    u_cmd = np.zeros(m)
+    u_start = np.zeros(m)
+    for k in range(n):
+        x = slab[k]
+        d = _decide(plan, k, d, x[2] / R, guard)
+        dirs[k] = d
+        new = d * V
+        changed = np.flatnonzero(new != u_cmd) if k else np.arange(m)
+        if len(changed):
+            _book(changed, t[k] + Td[changed], new[changed] - u_cmd[changed], t, gamma, extra, du_from)
+            u_cmd = new
+        u_start = u_start + du_from[k]
+        x[3] = u_start
+        if k + 1 == n:
+            break
+        np.einsum("ijm,jm->im", steps[k][3], x, out=slab[k + 1, :3])
+        slab[k + 1, :3] += extra[k].T
+    return slab
+
+
+def _book(sets, arrive, du, t, gamma, extra, du_from) -> None:
+    """Book motor-voltage changes ``du`` reaching ``sets`` at instants ``arrive`` (see ``_general``).
+
+    A change landing within TIME_EPS of a sample belongs to the step that sample
+    starts (as in ``simulate``); one landing in step q contributes
+    Gamma(t_{q+1} - arrive) du there and du to the voltage held from q + 1 on.
+    """
+    n = len(t)
+    q = np.searchsorted(t, arrive + TIME_EPS, side="right") - 1    # the step the change lands in
+    if q.max() >= n - 1:
+        keep = q < n - 1
+        sets, arrive, du, q = sets[keep], arrive[keep], du[keep], q[keep]
+    # each set appears once per call, so plain fancy-index += is safe (no repeated (step, set) pairs)
+    G = gamma(sets, t[q + 1] - np.maximum(arrive, t[q]))
+    extra[q, sets] += G * du[:, None]
+    du_from[q + 1, sets] += du
+
+
+class _GammaOfLength:
+    """Gamma(tau) = int_0^tau e^{A s} ds B for chosen sets and arbitrary tau (a delayed command's split).
+
+    Modal closed form, V (expm1(lam tau) / lam) V^-1 B, from one stacked
+    eigendecomposition: a handful of array operations per call instead of a
+    batched Taylor series.  Sets whose eigenvectors are ill-conditioned (near
+    a repeated eigenvalue) or with a zero eigenvalue use ``augmented_batch``.
+    """
+
+    def __init__(self, A: np.ndarray, B: np.ndarray) -> None:
+        self.A, self.B = A, B
+        lam, V = np.linalg.eig(A)
+        self.lam = lam
+        bt = np.einsum("mij,mj->mi", np.linalg.inv(V), B.astype(complex))
+        self.W = V * bt[:, None, :]                # Gamma(tau) = Re W expm1(lam tau) / lam
+        scale = np.maximum(1.0, np.max(np.abs(lam), axis=1))
+        self.exact = (np.linalg.cond(V) > 1e6) | np.any(np.abs(lam) < 1e-9 * scale[:, None], axis=1)
+        self.any_exact = bool(self.exact.any())
+
+    def __call__(self, sets: np.ndarray, tau: np.ndarray) -> np.ndarray:
+        lam = self.lam[sets]
+        G = np.einsum("kij,kj->ki", self.W[sets], np.expm1(lam * tau[:, None]) / lam).real
+        if self.any_exact:
+            fix = self.exact[sets]
+            if fix.any():
+                G[fix] = augmented_batch(self.A[sets[fix]], self.B[sets[fix]], tau[fix])[1]
+        return G
