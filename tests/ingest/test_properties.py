@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 
 from pipeline.config import default_config
 from pipeline.errors import PdrError
-from pipeline.ingest.parse import format_line, parse_line, rows_from_lines
+from pipeline.ingest.parse import format_line, parse_capture, parse_line, parse_plain, rows_from_lines
 from pipeline.ingest.stage import ingest_capture
 
 LAYOUT = {"t_raw": 0, "counts": 1, "adc": 2, "dir": 3}
@@ -92,3 +92,25 @@ def test_whole_files_keep_every_valid_row(rows, crlf, header):
     assert report["rows"]["quarantined"] == 0
     assert df["counts"].tolist() == [r["counts"] for r in rows]
     assert df["t_raw"].tolist() == [r["t_raw"] for r in rows]
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(row, min_size=1, max_size=40), st.booleans(), st.booleans(), st.sampled_from([2, 3, 4]))
+def test_fast_path_and_general_path_agree(rows, crlf, header, width):
+    layout = dict(list(LAYOUT.items())[:width])
+    eol = "\r\n" if crlf else "\n"
+    names = ",".join(["t_ms", "counts", "adc", "dir"][:width])
+    text = (names + eol if header else "") + eol.join(format_line(r, layout, width) for r in rows) + eol
+    data = text.encode()
+    fast = parse_plain(data, CFG.columns, "prop.csv")
+    general = parse_capture(data, CFG.columns, "prop.csv", fast=False)
+    monotonic = all(a["t_raw"] <= b["t_raw"] for a, b in zip(rows, rows[1:]))
+    assert (fast is not None) == monotonic
+    if fast is None:
+        return
+    a, b = fast.segments[0], general.segments[0]
+    assert a.layout == b.layout and a.width == b.width
+    assert a.line.tolist() == b.line.tolist()
+    for k in layout:
+        assert a.values[k].tolist() == b.values[k].tolist()
+    assert general.quarantined == [] and b.quarantined == []
