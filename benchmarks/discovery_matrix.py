@@ -23,7 +23,6 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from pipeline.derive.stage import derive_tables
 from pipeline.discover.candidates import parameter_of
 from pipeline.discover.stage import discover
 from pipeline.model.effects import make_effect
@@ -82,27 +81,14 @@ def cases(seeds: int, quick: bool) -> list[Case]:
 
 def recording(case: Case, work: Path) -> tuple[pd.DataFrame, object]:
     """Kinematics and rig config of one case, through the rig (or the custom plant), ingest, derive."""
-    if case.torque:
-        from tests.discover.synthetic import constant_torque_plant, synthetic_kinematics
-
-        kin, cfg = synthetic_kinematics(seed=100 + case.seed, plant=constant_torque_plant(case.torque),
-                                        current_noise_a=NOISE_V[case.noise] / 0.185)
-        signals = kin[["t_s", "theta_rad", "current_a", "dir"]]
-        return derive_tables(signals, cfg).kinematics, cfg
-    from pipeline.derive.stage import derive_run
-    from pipeline.ingest.stage import ingest_recording
-    from pipeline.rig.recording import RigSetup, make_recording, write_recording
     from pipeline.rig.serial import Artefacts
-    from pipeline.runs import load_config
+    from tests.discover.synthetic import constant_torque_kinematics, rig_kinematics
 
-    setup = RigSetup(effects=case.effects, noise_v=NOISE_V[case.noise],
-                     artefacts=Artefacts(dir_column=case.dir_column))
-    rec = make_recording(setup, seed=1000 + case.seed)
-    name = f"case{next(_NUMBER)}"
-    write_recording(rec, work / "raw", name)
-    paths = ingest_recording(work / "raw" / f"{name}.csv", work / "processed").runs[0]
-    derive_run(paths)
-    return pd.read_parquet(paths.kinematics), load_config(paths)
+    if case.torque:
+        return constant_torque_kinematics(case.torque, seed=100 + case.seed, noise_v=NOISE_V[case.noise])
+    kin, cfg, _ = rig_kinematics(case.effects, seed=1000 + case.seed, work=work / f"case{next(_NUMBER)}",
+                                 noise_v=NOISE_V[case.noise], artefacts=Artefacts(dir_column=case.dir_column))
+    return kin, cfg
 
 
 def evaluate(case: Case, work: Path) -> dict:

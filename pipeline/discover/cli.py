@@ -66,6 +66,7 @@ def discover(
                            f"{written['toml']}", path=recording)
         else:
             doc["adopted"] = str(adopt_effects(source_csv, augmented_effects(d)))
+    doc["seconds"] = round(d.seconds, 3)      # printed, not written: the files stay byte-identical on a re-run
     if json_out:
         typer.echo(dumps(doc))
         return

@@ -112,7 +112,7 @@ def _fmt(v: float) -> str:
 def markdown(d: Discovery, doc: dict) -> str:
     """The static report for people who do not open the viewer."""
     lines = [f"# Discovery: {d.meas.name}", "", f"Recording: `{doc['recording']}`  ",
-             f"Verdict: **{d.verdict}**  ", f"Time: {doc['seconds']:.2f} s, {doc['simulations']} simulations", ""]
+             f"Verdict: **{d.verdict}**  ", f"Simulations: {doc['simulations']}", ""]
     if d.effects:
         lines += ["## Effects added (in the order found)", "", "| effect | parameter | value | ~95 % interval | unit |",
                   "|---|---|---|---|---|"]

@@ -158,7 +158,6 @@ def discovery_json(d: Discovery, recording: str) -> dict:
         "dir_source": d.meas.dir_source,
         "motor_start_shift_samples": _onset_shift(d),
         "simulations": sel.simulations,
-        "seconds": round(d.seconds, 3),
     }
     if d.verdict == "unexplained":
         out["unexplained"] = unexplained_text(d)

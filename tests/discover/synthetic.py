@@ -1,74 +1,81 @@
-"""Development recordings for discovery tests: the model simulator, closed loop, plus the rig's
-sensor chain (integer encoder counts, 10-bit ADC of an ACS712 with noise, millis() jitter).
+"""Recordings for the discovery tests and benchmark.
 
-Used where a whole virtual-rig recording would only add time; the end-to-end tests use
-``pipeline.rig`` through ingest and derive.
+``rig_kinematics``: the virtual rig (its own reference plant), written as CSV + TOML,
+ingested and derived exactly like a user's recording.
+
+``constant_torque_kinematics``: an effect *outside* the catalogue, a constant torque on
+the pinion (unequal racks' weight), which the rig cannot produce: a small custom plant
+(exact discretisation with the torque as a second input), seen through the rig's own
+sensor chain (``pipeline.rig.sensors``) and derived by the derive stage.
 """
 
 from __future__ import annotations
 
+import tempfile
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
+from scipy.linalg import expm
 
 from pipeline.config import RigConfig, default_config
+from pipeline.derive.stage import derive_tables
 from pipeline.model.effects import Effect
-from pipeline.model.simulate import simulate
+from pipeline.model.simulate import next_dir
+from pipeline.rig import sensors
 
 
-def synthetic_kinematics(effects: tuple[Effect, ...] = (), *, seed: int = 0, current_noise_a: float = 0.02,
-                         config: RigConfig | None = None, duration: float = 24.95,
-                         plant=None) -> tuple[pd.DataFrame, RigConfig]:
-    """A kinematics table (derive layout) of a rig that has ``effects`` on top of ``config``'s model.
+def rig_kinematics(effects: tuple[Effect, ...] = (), *, config: RigConfig | None = None, seed: int = 0,
+                   work: Path | None = None, **setup) -> tuple[pd.DataFrame, RigConfig, Path]:
+    """(kinematics, resolved rig config, raw CSV path) of a virtual-rig recording with hidden ``effects``."""
+    from pipeline.derive.stage import derive_run
+    from pipeline.ingest.stage import ingest_recording
+    from pipeline.rig.recording import RigSetup, make_recording, write_recording
+    from pipeline.runs import load_config
 
-    ``plant``, when given, replaces the simulator (for effects outside the catalogue).
-    """
+    work = Path(work) if work is not None else Path(tempfile.mkdtemp(prefix="pdr-discover-"))
     cfg = config if config is not None else default_config()
+    rec = make_recording(RigSetup(effects=tuple(effects), config=cfg, **setup), seed=seed)
+    write_recording(rec, work / "raw", "rec")
+    paths = ingest_recording(work / "raw" / "rec.csv", work / "processed").runs[0]
+    derive_run(paths)
+    return pd.read_parquet(paths.kinematics), load_config(paths), work / "raw" / "rec.csv"
+
+
+def constant_torque_kinematics(torque_nm: float, *, seed: int = 0, noise_v: float = 5.0 / 1024,
+                               config: RigConfig | None = None, duration: float = 24.95) -> tuple[pd.DataFrame, RigConfig]:
+    """A closed-loop run whose pinion feels ``J dw/dt += torque_nm`` (not a catalogued effect)."""
+    cfg = config if config is not None else default_config()
+    spec = cfg.plant_spec()
+    p = spec.params
+    A, B = p.state_matrices()
     rng = np.random.default_rng(seed)
-    n = int(round(duration / cfg.controller.period_s)) + 1
-    t_true = np.cumsum(np.concatenate([[0.0], cfg.controller.period_s + rng.uniform(0, 0.0015, n - 1)]))
-    spec = cfg.plant_spec(tuple(effects))
-    sim = (plant or simulate)(spec, t_true)
-    counts = np.round(sim.theta / (2 * np.pi) * cfg.encoder.counts_per_rev)
-    theta = 2 * np.pi * counts / cfg.encoder.counts_per_rev
+    n = int(round(duration / spec.period_s)) + 1
+    true_ms, t_ms = sensors.loop_instants(n, spec.period_s, 0.6, rng, 0.0)
+    t = true_ms / 1000.0
+    x = np.zeros(3)
+    X = np.empty((n, 3))
+    dirs = np.zeros(n, dtype=np.int8)
+    d = 1
+    for k in range(n):
+        X[k] = x
+        d = next_dir(d, x[2] / p.R, spec.guard_rad)
+        dirs[k] = d
+        if k + 1 < n:
+            h = t[k + 1] - t[k]
+            M = np.zeros((4, 4))
+            M[:3, :3] = A * h
+            M[:3, 3] = (B * d * spec.v_drive + np.array([0.0, torque_nm / p.J, 0.0])) * h
+            x = expm(M)[:3, :] @ np.append(x, 1.0)
     cs = cfg.current_sensor
-    v = 2.5 + cs.sensitivity_v_per_a * (sim.current_measured + rng.normal(0, current_noise_a, n))
-    adc = np.clip(np.round(v / cs.adc_vref * cs.adc_steps), 0, cs.adc_steps - 1)
-    current = (adc * cs.adc_vref / cs.adc_steps - 2.5) / cs.sensitivity_v_per_a
-    t_ms = np.floor(t_true * 1000.0)
-    t = (t_ms - t_ms[0]) / 1000.0
-    omega = np.gradient(theta, t)
-    kin = pd.DataFrame({"t_s": t, "theta_rad": theta, "omega_rad_s": omega, "current_a": current,
-                        "dir": sim.dir.astype(np.int8), "dir_inferred": np.zeros(n, dtype=bool)})
-    return kin, cfg
-
-
-def constant_torque_plant(torque_nm: float):
-    """A plant outside the catalogue: a constant torque on the pinion (unequal racks' weight),
-    ``J dw/dt`` gains ``+torque_nm``; closed loop with the sketch's sampled guard."""
-    from scipy.linalg import expm
-
-    from pipeline.model.simulate import SimResult, next_dir
-
-    def plant(spec, t):
-        p = spec.params
-        A, B = p.state_matrices()
-        n = len(t)
-        x = np.zeros(3)
-        X = np.empty((n, 3))
-        dirs = np.zeros(n, dtype=np.int8)
-        d = 1
-        for k in range(n):
-            X[k] = x
-            d = next_dir(d, x[2] / p.R, spec.guard_rad)
-            dirs[k] = d
-            if k + 1 < n:
-                h = t[k + 1] - t[k]
-                M = np.zeros((4, 4))
-                M[:3, :3] = A * h
-                M[:3, 3] = (B * d * spec.v_drive + np.array([0.0, torque_nm / p.J, 0.0])) * h
-                x = expm(M)[:3, :] @ np.append(x, 1.0)
-        return SimResult(t=t, theta=X[:, 2] / p.R, omega=X[:, 1], current=X[:, 0],
-                         current_measured=X[:, 0] + spec.I0, delta=X[:, 2], dir=dirs,
-                         u=dirs.astype(float) * spec.v_drive)
-
-    return plant
+    counts = sensors.encoder_counts(X[:, 2] / p.R, cfg.encoder.counts_per_rev)
+    adc = sensors.adc_read(sensors.acs712_volts(X[:, 0], 2.5, cs.sensitivity_v_per_a, noise_v, rng),
+                           cs.adc_vref, cs.adc_steps)
+    zero = 2.5 - 0.5 * cs.adc_vref / cs.adc_steps     # what a user calibrating at rest writes down
+    signals = pd.DataFrame({
+        "t_s": (t_ms - t_ms[0]) / 1000.0,
+        "theta_rad": 2 * np.pi * counts / cfg.encoder.counts_per_rev,
+        "current_a": (adc * cs.adc_vref / cs.adc_steps - zero) / cs.sensitivity_v_per_a,
+        "dir": dirs,
+    })
+    return derive_tables(signals, cfg).kinematics, cfg
