@@ -69,6 +69,10 @@ class Modal:
         self.raw: dict[float, tuple[tuple[float, ...], tuple[float, ...]]] = {}   # exact float -> entry
         self._requests: set[float] = set()
 
+    def cached(self, L: float):
+        """(Phi, Psi) for L if already built (under its rounded key), else None."""
+        return self._steps.get(step_key(L))
+
     def seen(self, L: float) -> bool:
         """True from the second request of a length on: only repeated lengths earn cached matrices."""
         key = step_key(L)
@@ -348,7 +352,8 @@ class NonsmoothPlant:
             entry = (e, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, (1.0 - e) * u / self.Ra, 0.0, 0.0,
                      -math.inf, math.inf, 0, self.Kt, 0.0, 0.0, 0.0)
         else:
-            PS = self.modal[z != 0].raw.get(L)
+            modal = self.modal[z != 0]
+            PS = modal.raw.get(L) or modal.cached(L)
             if PS is None:
                 return None                       # not cached yet: ``advance`` builds it on repeat
             P, S = PS

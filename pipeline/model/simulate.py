@@ -29,7 +29,7 @@ import numpy as np
 
 from pipeline.errors import PdrError
 from pipeline.model.effects import PlantSpec
-from pipeline.model.linear import StepCache
+from pipeline.model.linear import KEY_DECIMALS, StepCache
 from pipeline.model.nonsmooth import NonsmoothPlant
 
 GUARDS = ("sampled", "continuous")
@@ -248,6 +248,7 @@ def _run_events(spec: PlantSpec, plan: _Plan, x: np.ndarray, *, continuous: bool
     t = plan.t.tolist()
     n = len(t)
     R, guard, V, Td = spec.params.R, spec.guard_rad, spec.v_drive, spec.Td
+    hs = np.round(np.diff(plan.t), KEY_DECIMALS).tolist()
     out = []
     dirs = []
     pending: deque[tuple[float, float]] = deque()
@@ -275,12 +276,17 @@ def _run_events(spec: PlantSpec, plan: _Plan, x: np.ndarray, *, continuous: bool
             break
         tk, t_next = t[k], t[k + 1]
         armed = d if continuous and k >= plan.start else 0
-        while pending and pending[0][0] <= tk + TIME_EPS:
-            u_m = pending.popleft()[1]
-        if not pending or pending[0][0] >= t_next - TIME_EPS:
+        while True:
+            while pending and pending[0][0] <= tk + TIME_EPS:
+                u_m = pending.popleft()[1]
+            if pending and pending[0][0] < t_next - TIME_EPS:
+                stop = pending[0][0]                  # a delayed command lands inside this step
+            else:
+                stop = t_next
+            # lengths rounded like the step caches' keys, so repeated spacings hit the same entry
+            L = hs[k] if stop == t_next and tk == t[k] else round(stop - tk, KEY_DECIMALS)
             # the common case, inlined: a cached whole step with no event (see NonsmoothPlant.quick_entry)
-            h = t_next - tk
-            e = entries.get((plant.z, plant.s, u_m, h, armed)) or plant.quick_entry(u_m, h, armed, guard)
+            e = entries.get((plant.z, plant.s, u_m, L, armed)) or plant.quick_entry(u_m, L, armed, guard)
             if e is not None:
                 I, w, dl = x
                 Ie = e[0] * I + e[1] * w + e[2] * dl + e[9]
@@ -298,12 +304,10 @@ def _run_events(spec: PlantSpec, plan: _Plan, x: np.ndarray, *, continuous: bool
                             sl * (e[15] * I + e[16] * w + e[17] * dl + e[18]) < 0.0
                             < sl * (e[15] * Ie + e[16] * we + e[17] * de + e[18]))
                 if ok:
-                    x = (Ie, we, de)
+                    x, tk = (Ie, we, de), stop
+                    if stop == t_next:
+                        break
                     continue
-        while True:
-            while pending and pending[0][0] <= tk + TIME_EPS:
-                u_m = pending.popleft()[1]
-            stop = pending[0][0] if pending and pending[0][0] < t_next - TIME_EPS else t_next
             x, tk, hit = plant.advance(x, tk, stop, u_m, armed, guard)
             if hit:
                 # the continuous controller reverses the instant theta reaches the guard
