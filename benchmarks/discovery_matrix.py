@@ -110,6 +110,9 @@ def evaluate(case: Case, work: Path) -> dict:
     live = "current" if set(truth) <= CURRENT_EFFECTS and truth else "theta"
     b, a = d.mse_before["replay"].get(live), d.mse_after["replay"].get(live)
     row["mse_cut"] = 1.0 - a / b if b else np.nan
+    # When the hidden effect is smaller than the noise (e.g. a 0.06 A offset under 80 mA of sensor
+    # noise) no model can cut the MSE by half; then "the MSE is down to the noise floor" is the bar.
+    row["at_floor"] = bool(a <= 1.5 * d.selection.floor.get(live, 0.0)) if a is not None else False
     bc, ac = d.mse_before["closed_loop"].get(live), d.mse_after["closed_loop"].get(live)
     row["mse_cut_closed_loop"] = 1.0 - ac / bc if bc else np.nan
     if case.label in ("clean",):
@@ -119,7 +122,8 @@ def evaluate(case: Case, work: Path) -> dict:
     elif "+" in case.label:
         row["ok"] = set(found) == set(case.label.split("+")) and d.verdict == "explained"
     else:
-        row["ok"] = (predicted == case.label and row["param_err"] <= 0.15 and row["mse_cut"] >= 0.5)
+        row["ok"] = (predicted == case.label and row["param_err"] <= 0.15
+                     and (row["mse_cut"] >= 0.5 or row["at_floor"]))
     return row
 
 
@@ -143,7 +147,8 @@ def main() -> None:
             r = rows[-1]
             print(f"{'ok ' if r['ok'] else 'BAD'} {r['label']:45s} {r['noise']:8s} seed {r['seed']} "
                   f"{'' if r['dir'] else 'no-dir '}-> {r['verdict']:11s} {r['found']:45s} "
-                  f"err {r['param_err']:.3f} cut {r['mse_cut']:.3f} {r['seconds']:.2f} s", flush=True)
+                  f"err {r['param_err']:.3f} cut {r['mse_cut']:.3f}{' (at floor)' if r['at_floor'] else ''} "
+                  f"{r['seconds']:.2f} s", flush=True)
     df = pd.DataFrame(rows)
     pd.set_option("display.width", 250)
     pd.set_option("display.max_columns", 30)
@@ -155,7 +160,8 @@ def main() -> None:
                                       mse_cut_min=("mse_cut", "min"),
                                       mse_cut_closed_loop_min=("mse_cut_closed_loop", "min")).round(4))
     print(f"\nPassed {int(df['ok'].sum())} of {len(df)} recordings "
-          f"(single effects: named first, parameter within 15 %, MSE cut >= 50 %; pairs: both named; "
+          f"(single effects: named first, parameter within 15 %, MSE cut >= 50 % or down to the noise floor; "
+          f"pairs: both named; "
           f"clean: none; torque: unexplained with no name).")
     print(f"Time per recording (discovery, all candidates): mean {df['seconds'].mean():.2f} s, "
           f"median {df['seconds'].median():.2f} s, max {df['seconds'].max():.2f} s "
