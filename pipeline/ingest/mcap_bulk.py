@@ -90,10 +90,6 @@ def write_mcap(out: IO[bytes], channels: list[ChannelBatch], log_time_ns: np.nda
     n = len(log_time_ns)
     log_time_ns = np.asarray(log_time_ns, dtype=np.uint64)
     n_ch = len(channels)
-    per_channel = [_records(json_objects(ch.fields), i + 1, log_time_ns) for i, ch in enumerate(channels)]
-    offsets = [np.frombuffer(r.buffers()[1], dtype=np.int64, count=len(r) + 1) for r in per_channel]
-    bodies = [r.buffers()[2] for r in per_channel]
-
     pos = 0
     b = RecordBuilder()
 
@@ -112,16 +108,21 @@ def write_mcap(out: IO[bytes], channels: list[ChannelBatch], log_time_ns: np.nda
         rec.write(b)
     emit(_flush(b))
 
-    # Blocks of samples sized so the largest channel's chunk is about chunk_bytes; within a block,
-    # one chunk per channel (chunks of different channels overlap in time, which readers merge).
-    widest = max((o[-1] for o in offsets), default=0)
-    per_block = max(1, int(chunk_bytes * n // widest) if widest else n)
+    # Blocks of samples sized so the widest channel's chunk is about chunk_bytes; within a block, one
+    # chunk per channel (chunks of different channels overlap in time, which readers merge).  Only one
+    # block's JSON is in memory at a time, so peak memory does not grow with the recording.
+    sample = slice(0, min(n, 1024))
+    widest = max((_records(json_objects({k: v[sample] for k, v in ch.fields.items()}), 1, log_time_ns[sample])
+                  .nbytes / max(1, sample.stop) for ch in channels), default=1.0)
+    per_block = max(1, int(chunk_bytes // widest))
     chunk_indexes = []
     for a in range(0, n, per_block):
         z = min(a + per_block, n)
         t = log_time_ns[a:z]
-        for cid, (off, body) in enumerate(zip(offsets, bodies), start=1):
-            raw = memoryview(body)[off[a]:off[z]].tobytes()
+        for cid, ch in enumerate(channels, start=1):
+            recs = _records(json_objects({k: v[a:z] for k, v in ch.fields.items()}), cid, t)
+            off = np.frombuffer(recs.buffers()[1], dtype=np.int64, count=len(recs) + 1)
+            raw = memoryview(recs.buffers()[2])[off[0]:off[-1]].tobytes()
             chunk = Chunk(compression="lz4", data=lz4.frame.compress(raw), message_start_time=int(t.min()),
                           message_end_time=int(t.max()), uncompressed_crc=zlib.crc32(raw), uncompressed_size=len(raw))
             chunk_start = pos
@@ -129,7 +130,7 @@ def write_mcap(out: IO[bytes], channels: list[ChannelBatch], log_time_ns: np.nda
             emit(_flush(b))
             chunk_length = pos - chunk_start
             index_start = pos
-            emit(_message_index(cid, t, off[a:z] - off[a]))
+            emit(_message_index(cid, t, off[:-1] - off[0]))
             chunk_indexes.append(ChunkIndex(
                 message_start_time=chunk.message_start_time, message_end_time=chunk.message_end_time,
                 chunk_start_offset=chunk_start, chunk_length=chunk_length, message_index_offsets={cid: index_start},

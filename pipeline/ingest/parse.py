@@ -264,8 +264,12 @@ def parse_plain(data: bytes, columns: ColumnsConfig, source: str) -> ParsedFile 
     body_start = data.find(b"\n") + 1
     if body_start == 0 or not data.endswith(b"\n") or b"\n\n" in data or b"\n\r\n" in data:
         return None
-    first = data[:body_start].decode("utf-8", "replace").strip(TRIM)
-    if not first or first.startswith("#"):
+    try:
+        first = data[:body_start].decode("utf-8").strip(TRIM)
+    except UnicodeDecodeError:
+        return None
+    if not first or first.startswith("#") or first.startswith("\ufeff") or _has_control_bytes(
+            np.frombuffer(data[:body_start], dtype=np.uint8)):
         return None
     names = header_fields(first)
     header = not all(re.fullmatch(TIME_RE, f) for f in names)
@@ -292,7 +296,7 @@ def parse_plain(data: bytes, columns: ColumnsConfig, source: str) -> ParsedFile 
                               convert_options=pcsv.ConvertOptions(column_types={k: t for k, (_, t) in wanted.items()},
                                                                   include_columns=list(wanted), strings_can_be_null=False,
                                                                   null_values=[], quoted_strings_can_be_null=False))
-    except pa.ArrowInvalid:
+    except pa.ArrowException:
         return None
     values = {wanted[k][0]: table.column(k).to_numpy() for k in wanted}
     n = table.num_rows

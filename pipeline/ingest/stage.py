@@ -142,6 +142,7 @@ def ingest_capture(data: bytes, cfg: RigConfig, source: str, stem: str) -> tuple
         "rows": {"read": kept_rows + len(quarantined), "kept": sum(len(r.signals) for r in runs),
                  "quarantined": len(quarantined)},
         "quarantined": [q.to_dict() for q in quarantined],
+        "board_resets": max(len(parsed.header_lines) - 1, 0),
         "defects": defects,
         "segments": seg_reports,
         "runs": [r.name for r in runs],
