@@ -255,7 +255,9 @@ def _run_events(spec: PlantSpec, plan: _Plan, x: np.ndarray, *, continuous: bool
     u_m = 0.0
     d = last = 0
     own = plan.closed_loop
-    entries = plant._quick
+    by_regime: dict[tuple, dict[float, tuple]] = {}    # (z, s, u, armed) -> step length -> quick entry
+    last_regime = None
+    by_length: dict[float, tuple] = {}
     for k in range(n):
         out.append(x)
         if own and k > plan.start:                   # next_dir, inlined
@@ -286,23 +288,29 @@ def _run_events(spec: PlantSpec, plan: _Plan, x: np.ndarray, *, continuous: bool
             # lengths rounded like the step caches' keys, so repeated spacings hit the same entry
             L = hs[k] if stop == t_next and tk == t[k] else round(stop - tk, KEY_DECIMALS)
             # the common case, inlined: a cached whole step with no event (see NonsmoothPlant.quick_entry)
-            e = entries.get((plant.z, plant.s, u_m, L, armed)) or plant.quick_entry(u_m, L, armed, guard)
+            regime = (plant.z, plant.s, u_m, armed)
+            if regime != last_regime:
+                by_length = by_regime.setdefault(regime, {})
+                last_regime = regime
+            e = by_length.get(L)
+            if e is None:
+                e = plant.quick_entry(u_m, L, armed, guard)
+                if e is not None:
+                    by_length[L] = e
             if e is not None:
+                p0, p1, p2, p3, p4, p5, p6, p7, p8, q0, q1, q2, lo, hi, sl, k0, k1, k2, k3 = e
                 I, w, dl = x
-                Ie = e[0] * I + e[1] * w + e[2] * dl + e[9]
-                we = e[3] * I + e[4] * w + e[5] * dl + e[10]
-                de = e[6] * I + e[7] * w + e[8] * dl + e[11]
-                sl = e[14]
-                if plant.s == 0:
+                Ie = p0 * I + p1 * w + p2 * dl + q0
+                we = p3 * I + p4 * w + p5 * dl + q1
+                de = p6 * I + p7 * w + p8 * dl + q2
+                if regime[1] == 0:
                     net = plant.Kt * Ie - plant.spring_torque(dl)
                     ok = -plant.Tc <= net <= plant.Tc
                 else:
-                    ok = e[12] <= de <= e[13] and (
-                        (w > 0.0) == (we > 0.0) or (e[12] == -math.inf and e[13] == math.inf))
+                    ok = lo <= de <= hi and ((w > 0.0) == (we > 0.0) or (lo == -math.inf and hi == math.inf))
                     if ok and sl:
                         ok = sl * we >= 0.0 and not (
-                            sl * (e[15] * I + e[16] * w + e[17] * dl + e[18]) < 0.0
-                            < sl * (e[15] * Ie + e[16] * we + e[17] * de + e[18]))
+                            sl * (k0 * I + k1 * w + k2 * dl + k3) < 0.0 < sl * (k0 * Ie + k1 * we + k2 * de + k3))
                 if ok:
                     x, tk = (Ie, we, de), stop
                     if stop == t_next:
