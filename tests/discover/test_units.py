@@ -1,0 +1,64 @@
+"""The pieces discovery's evidence rests on: the noise floor, the held-out folds, the localisation."""
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from pipeline.config import default_config
+from pipeline.discover.candidates import autocorrelation_time, folds_by_cycle
+from pipeline.discover.measurement import measurement_from_kinematics
+from pipeline.discover.residuals import describe, difference_noise, noise_floor, signatures
+from pipeline.errors import PdrError
+from pipeline.model.simulate import simulate
+
+
+def test_difference_noise_sees_white_noise_through_a_smooth_signal():
+    rng = np.random.default_rng(0)
+    t = np.arange(500) * 0.05
+    for sigma in (0.001, 0.03):
+        r = 0.5 * np.sin(3.0 * t) + rng.normal(0, sigma, len(t))
+        assert difference_noise(r) == pytest.approx(sigma ** 2, rel=0.2)
+
+
+def test_autocorrelation_time_is_one_for_white_and_large_for_smooth():
+    rng = np.random.default_rng(1)
+    assert autocorrelation_time(rng.normal(size=2000)) < 1.3
+    assert autocorrelation_time(np.sin(np.arange(2000) * 0.01)) > 20
+
+
+def _kinematics(spec, current_offset=0.0):
+    t = np.arange(500) * 0.05
+    sim = simulate(spec, t)
+    return pd.DataFrame({"t_s": t, "theta_rad": sim.theta, "omega_rad_s": sim.omega,
+                         "current_a": sim.current + current_offset, "dir": sim.dir,
+                         "dir_inferred": np.zeros(len(t), dtype=bool)})
+
+
+def test_folds_hold_both_directions_and_cover_every_sample():
+    cfg = default_config()
+    meas = measurement_from_kinematics(_kinematics(cfg.plant_spec()), cfg, "x")
+    a, b = folds_by_cycle(meas)
+    assert np.all(a ^ b)
+    for fold in (a, b):
+        assert {1, -1} <= set(np.unique(meas.dir[fold]))
+
+
+def test_floor_is_at_least_the_quantisation_and_localisation_names_a_current_bias():
+    cfg = default_config()
+    meas = measurement_from_kinematics(_kinematics(cfg.plant_spec(), current_offset=0.06), cfg, "x")
+    sim = meas.replay(meas.spec())
+    floor = noise_floor(meas, sim)
+    q = 2 * np.pi / cfg.encoder.counts_per_rev
+    assert floor["theta"] >= q * q / 12
+    text = " ".join(describe(signatures(meas, sim, floor), floor))
+    assert "the current residual has a mean of +0.06 A (in both modes" in text
+    assert "theta residual is at the noise floor" in text
+
+
+def test_refuses_tables_it_cannot_use():
+    cfg = default_config()
+    kin = _kinematics(cfg.plant_spec())
+    with pytest.raises(PdrError, match="at least 20"):
+        measurement_from_kinematics(kin.head(5), cfg, "short")
+    with pytest.raises(PdrError, match="dir"):
+        measurement_from_kinematics(kin.drop(columns=["dir"]), cfg, "nodir")
