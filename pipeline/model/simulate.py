@@ -100,8 +100,8 @@ def _plan(spec: PlantSpec, t, duration: float, dir0: int, dir_log, closed_loop: 
     if guard not in GUARDS:
         raise PdrError(f"unknown guard '{guard}', expected one of {', '.join(GUARDS)}", key="guard")
     t = sample_times(duration, spec.period_s) if t is None else np.asarray(t, dtype=float)
-    if t.ndim != 1 or len(t) == 0 or not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0.0):
-        raise PdrError("expected a non-empty, finite, strictly increasing array of sample instants", key="t")
+    if t.ndim != 1 or len(t) == 0 or not np.all(np.isfinite(t)) or np.any(np.diff(t) < 0.0):
+        raise PdrError("expected a non-empty, finite, non-decreasing array of sample instants", key="t")
     if dir0 not in (-1, 1):
         raise PdrError(f"expected dir0 = 1 or -1, got {dir0!r}", key="dir0")
     if dir_log is None:

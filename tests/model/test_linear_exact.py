@@ -72,6 +72,14 @@ def test_leading_zeros_keep_the_motor_off_then_the_controller_takes_over(spec):
     _close(r, simulate_ivp(spec, t, dir_log=log, closed_loop=True))
 
 
+def test_repeated_instants_are_a_zero_length_step(spec):
+    t = np.array([0.0, 0.05, 0.05, 0.1])
+    for s in (spec, replace(spec, Tc=6e-4, gap=0.1)):
+        r = simulate(s, t)
+        assert r.theta[1] == r.theta[2] and r.current[1] == r.current[2]
+        assert r.current[3] > r.current[2] > 0.0
+
+
 def test_next_dir_is_the_sketch_rule():
     g = 0.9
     assert next_dir(1, 0.95, g) == -1 and next_dir(1, 0.5, g) == 1
@@ -80,7 +88,8 @@ def test_next_dir_is_the_sketch_rule():
 
 
 @pytest.mark.parametrize("kwargs, key", [
-    ({"t": np.array([0.0, 0.05, 0.05])}, "t"),
+    ({"t": np.array([0.0, 0.05, 0.04])}, "t"),
+    ({"t": np.array([0.0, np.nan])}, "t"),
     ({"guard": "sometimes"}, "guard"),
     ({"dir_log": np.zeros(3), "t": np.array([0.0, 0.05])}, "dir_log"),
     ({"closed_loop": False}, "dir_log"),
