@@ -139,6 +139,8 @@ def markdown(d: Discovery, doc: dict) -> str:
     lines += ["## Where the base model disagrees (replay residuals)", ""]
     lines += [f"- {x}" for x in d.localisation_before] or ["- nothing above the noise floor"]
     lines += ["", "## After", ""] + ([f"- {x}" for x in d.localisation_after] or ["- nothing"])
+    lines += ["", "## Residual RMS by state and after events (noise standard deviations; before -> after)", ""]
+    lines += _tables_md(d)
     lines += ["", "## Candidates", "",
               "| round | candidate | score | value | ~95 % interval | delta BIC | failed checks |",
               "|---|---|---|---|---|---|---|"]
@@ -153,6 +155,24 @@ def markdown(d: Discovery, doc: dict) -> str:
               f"![signals]({FILES['signals_png']})", "", f"![residuals]({FILES['residuals_png']})", "",
               f"![candidates]({FILES['candidates_png']})", ""]
     return "\n".join(lines)
+
+
+def _tables_md(d: Discovery) -> list[str]:
+    sigs = list(d.meas.signals)
+    out = []
+    for key, rows in d.tables_before.items():
+        after = d.tables_after.get(key, [])
+        if not rows:
+            continue
+        first = "lag" if "lag" in rows[0] else "bin"
+        out += [f"**{key.replace('_', ' ')}**", "", f"| {first} | n | " + " | ".join(sigs) + " |",
+                "|---|---|" + "---|" * len(sigs)]
+        for b, a in zip(rows, after):
+            label = str(b["lag"]) if first == "lag" else f"{b['from']:.3g} .. {b['to']:.3g}"
+            cells = " | ".join(f"{b[f'{s}_rms_noise']:.3g} -> {a[f'{s}_rms_noise']:.3g}" for s in sigs)
+            out.append(f"| {label} | {b['n']} | {cells} |")
+        out.append("")
+    return out
 
 
 def _rrd_blueprint():

@@ -194,3 +194,49 @@ def describe(sig: dict[str, dict[str, float]], floor: dict[str, float]) -> list[
             if f[key] > 0.3:
                 lines.append(f"{100 * f[key]:.0f}% of the {s} residual energy is {text}")
     return lines
+
+
+def _bins(x: np.ndarray, n: int) -> np.ndarray:
+    """Quantile edges of ``x`` (n bins), unique."""
+    x = x[np.isfinite(x)]
+    return np.unique(np.quantile(x, np.linspace(0.0, 1.0, n + 1))) if len(x) else np.array([0.0, 1.0])
+
+
+def binned(meas: Measurement, sim: SimResult, floor: dict[str, float], n_bins: int = 5,
+           max_lag: int = 6) -> dict[str, list[dict]]:
+    """Residual RMS per signal, binned in state (|w|, theta, measured current) and aligned on
+    events (lags after each switch, each velocity reversal and each angle zero crossing),
+    in noise standard deviations (1 = at the noise floor)."""
+    res = residuals(meas, sim)
+    noise = {s: np.sqrt(floor[s]) for s in res}
+    # bins and events come from the measurement, so before and after share them
+    state = {"by_abs_velocity": np.abs(meas.omega), "by_angle": meas.theta}
+    if meas.current is not None:
+        state["by_current"] = meas.current
+    out: dict[str, list[dict]] = {}
+    for key, x in state.items():
+        edges = _bins(x, n_bins)
+        idx = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, len(edges) - 2)
+        rows = []
+        for b in range(len(edges) - 1):
+            m = (idx == b) & np.isfinite(x)
+            if m.any():
+                rows.append({"from": float(edges[b]), "to": float(edges[b + 1]), "n": int(m.sum()),
+                             **{f"{s}_rms_noise": float(np.sqrt(np.mean(r[m] ** 2)) / noise[s])
+                                for s, r in res.items()}})
+        out[key] = rows
+    ev = events(meas)
+    w = np.nan_to_num(meas.omega)
+    reversals = np.flatnonzero(np.sign(w[1:]) * np.sign(w[:-1]) < 0) + 1
+    for key, starts in (("after_switch", ev.switches), ("after_velocity_reversal", reversals),
+                        ("after_zero_crossing", ev.zero_crossings)):
+        rows = []
+        for lag in range(max_lag):
+            k = starts + lag
+            k = k[k < meas.n]
+            if len(k):
+                rows.append({"lag": lag, "n": int(len(k)),
+                             **{f"{s}_rms_noise": float(np.sqrt(np.mean(r[k] ** 2)) / noise[s])
+                                for s, r in res.items()}})
+        out[key] = rows
+    return out

@@ -19,7 +19,7 @@ import pandas as pd
 from pipeline.config import RigConfig, effects_toml_snippet
 from pipeline.discover.candidates import make, value_of
 from pipeline.discover.measurement import Measurement, measurement_from_kinematics
-from pipeline.discover.residuals import describe, signatures
+from pipeline.discover.residuals import binned, describe, signatures
 from pipeline.discover.selection import Selection, select
 from pipeline.model.effects import Effect
 from pipeline.model.simulate import SimResult
@@ -41,6 +41,8 @@ class Discovery:
     mse_after: dict[str, dict[str, float]]
     localisation_before: list[str]
     localisation_after: list[str]
+    tables_before: dict[str, list[dict]]      # residual RMS binned in state / aligned on events (replay)
+    tables_after: dict[str, list[dict]]
     seconds: float
 
     @property
@@ -80,6 +82,8 @@ def discover(kin: pd.DataFrame, config: RigConfig, name: str) -> Discovery:
     return Discovery(meas=meas, selection=sel, base=base, final=final,
                      mse_before=_errors(kin_b, base), mse_after=_errors(kin_a, final),
                      localisation_before=describe(sig_b, sel.floor), localisation_after=describe(sig_a, sel.floor),
+                     tables_before=binned(meas, base["replay"], sel.floor),
+                     tables_after=binned(meas, final["replay"], sel.floor),
                      seconds=time.perf_counter() - t0)
 
 
@@ -154,6 +158,8 @@ def discovery_json(d: Discovery, recording: str) -> dict:
         "structure_after": sel.excess_after,
         "localisation_before": d.localisation_before,
         "localisation_after": d.localisation_after,
+        "localisation_tables": {"before": d.tables_before, "after": d.tables_after,
+                                "unit": "residual RMS in noise standard deviations (1 = at the noise floor)"},
         "effects_toml": effects_toml_snippet(augmented_effects(d)) if d.effects else "",
         "dir_source": d.meas.dir_source,
         "motor_start_shift_samples": _onset_shift(d),
