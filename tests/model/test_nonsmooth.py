@@ -123,3 +123,19 @@ def test_continuous_guard_switches_between_samples_not_at_them():
     assert all(abs(r.theta[k - 1]) < spec.guard_rad for k in flips)
     # ...so the continuous variant overshoots less than the sketch's sampled guard
     assert r.theta.max() < s.theta.max()
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_random_effect_mixes_and_initial_states_match_reference_plant(seed):
+    # any combination discovery may try: effects at random values in their BOUNDS-ish ranges,
+    # from a random initial state, either guard
+    rng = np.random.default_rng(100 + seed)
+    p = BASE.params
+    spec = replace(BASE, Tc=float(rng.uniform(0, 4e-3)), gap=float(rng.uniform(0, 0.5)),
+                   Td=float(rng.uniform(0, 0.2)), I0=float(rng.uniform(-0.1, 0.1)), v_drive=float(rng.uniform(3, 6)),
+                   params=p.with_(b=float(rng.uniform(0, 3e-3)), J=p.J + float(rng.uniform(0, 3e-3)),
+                                  K1=p.K1 * float(rng.uniform(0.3, 3)), K2=p.K2 * float(rng.uniform(0.3, 3))))
+    t = jittered_times(200, seed=seed)
+    x0 = (float(rng.uniform(-0.2, 0.2)), float(rng.uniform(-1, 1)), float(rng.uniform(-0.05, 0.05)))
+    guard = ("sampled", "continuous")[seed % 2]
+    _close(simulate(spec, t, x0=x0, guard=guard), simulate_reference(spec, t, x0=x0, guard=guard))
