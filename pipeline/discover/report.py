@@ -19,8 +19,8 @@ from pipeline.discover.stage import Discovery, augmented_effects
 from pipeline.io.atomic import atomic_path, write_bytes, write_json, write_text
 
 FILES = {"json": "discovery.json", "toml": "effects.toml", "markdown": "report.md",
-         "signals_png": "signals.png", "residuals_png": "residuals.png", "candidates_png": "candidates.png",
-         "rrd": "discovery.rrd"}
+         "signals_png": "signals.png", "residuals_png": "residuals.png", "localisation_png": "localisation.png",
+         "candidates_png": "candidates.png", "rrd": "discovery.rrd"}
 _SIGNALS = (("theta", "theta_rad", "theta", "rad"), ("omega", "omega_rad_s", "omega", "rad/s"),
             ("current", "current_a", "current_measured", "A"))
 _COLORS = {"measured": "0.25", "base": "tab:orange", "augmented": "tab:blue"}
@@ -85,6 +85,37 @@ def residuals_png(d: Discovery, way: str = "replay") -> bytes:
     return _png(fig)
 
 
+def localisation_png(d: Discovery) -> bytes:
+    """Residual RMS (noise standard deviations, log scale) by state bin and by lag after events,
+    before and after: where the disagreement lives and whether the added effects removed it."""
+    from matplotlib.figure import Figure
+
+    keys = [k for k, rows in d.tables_before.items() if rows]
+    fig = Figure(figsize=(12, 2.2 * ((len(keys) + 2) // 3) + 0.6))
+    axes = fig.subplots((len(keys) + 2) // 3, 3, squeeze=False).ravel()
+    styles = {"theta": "o-", "current": "s--"}
+    for ax, key in zip(axes, keys):
+        for label, tables, color in (("before", d.tables_before, _COLORS["base"]),
+                                     ("after", d.tables_after, _COLORS["augmented"])):
+            rows = tables[key]
+            x = np.arange(len(rows))
+            for s in d.meas.signals:
+                ax.plot(x, [max(r[f"{s}_rms_noise"], 1e-3) for r in rows], styles.get(s, "o-"), color=color,
+                        ms=3, lw=1.0, label=f"{s} {label}")
+        ax.axhline(1.0, color="0.5", lw=0.6)
+        ax.set_yscale("log")
+        ax.set_title(key.replace("_", " "), fontsize=9)
+        ax.set_xlabel("lag [samples]" if "after" in key else "bin (quantiles, low to high)", fontsize=8)
+        ax.tick_params(labelsize=7)
+    for ax in axes[len(keys):]:
+        ax.set_visible(False)
+    if keys:
+        axes[0].legend(fontsize=7)
+    fig.suptitle(f"{d.meas.name}: residual RMS / noise (1 = noise floor)", fontsize=10)
+    fig.tight_layout()
+    return _png(fig)
+
+
 def candidates_png(d: Discovery) -> bytes:
     """Each candidate's share of held-out structure removed, per round, accepted ones filled."""
     from matplotlib.figure import Figure
@@ -140,7 +171,7 @@ def markdown(d: Discovery, doc: dict) -> str:
     lines += [f"- {x}" for x in d.localisation_before] or ["- nothing above the noise floor"]
     lines += ["", "## After", ""] + ([f"- {x}" for x in d.localisation_after] or ["- nothing"])
     lines += ["", "## Residual RMS by state and after events (noise standard deviations; before -> after)", ""]
-    lines += _tables_md(d)
+    lines += [f"![localisation]({FILES['localisation_png']})", ""] + _tables_md(d)
     lines += ["", "## Candidates", "",
               "| round | candidate | score | value | ~95 % interval | delta BIC | failed checks |",
               "|---|---|---|---|---|---|---|"]
@@ -225,6 +256,7 @@ def write_outputs(out_dir: Path, d: Discovery, doc: dict, *, rrd: bool = True) -
     write_bytes(paths["signals_png"], signals_png(d))
     write_bytes(paths["residuals_png"], residuals_png(d))
     write_bytes(paths["candidates_png"], candidates_png(d))
+    write_bytes(paths["localisation_png"], localisation_png(d))
     md = markdown(d, doc)
     write_text(paths["markdown"], md)
     if rrd:

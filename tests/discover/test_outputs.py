@@ -62,7 +62,7 @@ def test_json_contract(delay_run):
 def test_files_written_and_snippet_is_accepted_by_validation(delay_run):
     csv, out, doc = delay_run
     for name in ("discovery.json", "effects.toml", "report.md", "signals.png", "residuals.png",
-                 "candidates.png", "discovery.rrd"):
+                 "localisation.png", "candidates.png", "discovery.rrd"):
         assert (out / name).is_file(), name
     snippet = (out / "effects.toml").read_text()
     assert tomllib.loads(snippet)["effects"]["loop_delay"]["Td"] == pytest.approx(
@@ -98,7 +98,8 @@ def test_rerun_gives_identical_files(delay_run, tmp_path):
     csv, out, _ = delay_run
     res = runner.invoke(app, ["discover", str(csv), "--out", str(tmp_path), "--no-rrd"])
     assert res.exit_code == 0, res.output
-    for name in ("discovery.json", "effects.toml", "report.md", "signals.png", "residuals.png", "candidates.png"):
+    for name in ("discovery.json", "effects.toml", "report.md", "signals.png", "residuals.png",
+                 "localisation.png", "candidates.png"):
         assert (tmp_path / name).read_bytes() == (out / name).read_bytes(), name
 
 
