@@ -59,7 +59,6 @@ class Modal:
         Vinv = np.linalg.inv(V)
         scale = max(1.0, float(np.max(np.abs(lam))))
         zero = np.abs(lam) < 1e-12 * scale
-        self.lam_np, self.V_np, self.Vinv_np, self.zero_np = lam, V, Vinv, zero
         self.lam = [complex(v) for v in lam]
         self.zero = [bool(v) for v in zero]
         self.V = [[complex(v) for v in row] for row in V]
