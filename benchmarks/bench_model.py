@@ -4,7 +4,8 @@
    ``simulate`` vs one scipy ``solve_ivp`` call per control period
    (DOP853, rtol 1e-10, atol 1e-12, same sampled controller) -- target >= 1000x;
 2. fitting: ``simulate_batch`` over 1000 parameter sets vs 1000 ``simulate``
-   calls -- target >= 20x (without and with loop delay / sensor offset);
+   calls -- target >= 20x (closed loop without and with loop delay / sensor
+   offset, and replay of a logged command, which is what discovery fits);
 3. every effect on (Coulomb friction with stick, backlash, loop delay, sensor
    offset, viscous friction, driver drop, rack inertia, springs): ``simulate``
    vs the rig's reference plant ``simulate_reference`` -- target >= 50x.
@@ -41,8 +42,8 @@ def _line(label: str, seconds: float, ratio: float | None = None, target: float 
 
 def bench_linear(t: np.ndarray) -> float:
     spec = default_config().plant_spec()
-    base = best_of(lambda: simulate_ivp(spec, t), repeat=2)
-    fast = best_of(lambda: simulate(spec, t), repeat=20)
+    base = best_of(lambda: simulate_ivp(spec, t), repeat=3)
+    fast = best_of(lambda: simulate(spec, t), repeat=50)
     ratio = base / fast
     print(f"1. linear model, {len(t)} samples, closed loop, sampled guard")
     print(_line("per-period solve_ivp (rtol 1e-10)", base))
@@ -68,16 +69,18 @@ def parameter_sets(n: int, delayed: bool, seed: int = 0):
 
 def bench_batch(t: np.ndarray, n: int = 1000) -> list[float]:
     ratios = []
-    print(f"2. {n} parameter sets, {len(t)} samples, closed loop")
-    for delayed in (False, True):
+    print(f"2. {n} parameter sets, {len(t)} samples")
+    log = simulate(default_config().plant_spec(), t).dir
+    cases = [("closed loop", False, {}), ("closed loop, with Td, I0", True, {}),
+             ("replay, with Td, I0", True, {"dir_log": log, "closed_loop": False})]
+    for tag, delayed, kw in cases:
         specs = parameter_sets(n, delayed)
         t0 = time.perf_counter()
         for s in specs:
-            simulate(s, t)
+            simulate(s, t, **kw)
         single = time.perf_counter() - t0
-        batch = best_of(lambda: simulate_batch(specs, t), repeat=3)
+        batch = best_of(lambda: simulate_batch(specs, t, **kw), repeat=3)
         ratio = single / batch
-        tag = "with Td, I0" if delayed else "linear"
         print(_line(f"{n} x simulate ({tag})", single))
         print(_line(f"simulate_batch ({tag})", batch, ratio, 20))
         ratios.append(ratio)
