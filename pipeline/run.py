@@ -49,7 +49,7 @@ STAGES = ("ingest", "derive", "validate")
 # Imported once in the forkserver, inherited by every worker.
 PRELOAD = ["numpy", "pandas", "pyarrow.parquet", "scipy.linalg", "rerun", "matplotlib.figure",
            "pipeline.ingest.stage", "pipeline.derive.stage", "pipeline.validate.stage",
-           "pipeline.validate.rerun_log", "pipeline.validate.plots"]
+           "pipeline.validate.rerun_log", "pipeline.validate.warmup"]
 
 
 @contextmanager
@@ -298,9 +298,9 @@ def run_pipeline(raw: Path, processed: Path, *, jobs: int = 2, force: bool = Fal
 
 def print_report(report: RunReport, processed: Path) -> None:
     """End-of-run summary: what ran, what was skipped, what failed and why, where the time went."""
-    from rich.console import Console
+    from pipeline.validate.summary import wide_console
 
-    console = Console(stderr=True)
+    console = wide_console()
     n_runs = sum(len(r["runs"]) for r in report.ran if r["status"] == "ok")
     ok = len(report.ran) - len(report.failed)
     console.print(f"[bold]pdr run[/]: {ok} recording(s) processed ({n_runs} runs), "

@@ -49,17 +49,17 @@ def gate(
 
     Example: pdr gate --thresholds raw/thresholds.toml
     """
-    from rich.console import Console
     from rich.table import Table
 
-    from pipeline.validate.gate import UNITS, gate as run_gate, load_thresholds
+    from pipeline.validate.gate import gate as run_gate, load_thresholds
+    from pipeline.validate.summary import wide_console
 
     spec = load_thresholds(thresholds)
     verdicts = run_gate(processed, spec)
     if not verdicts:
         raise PdrError("no processed runs to gate (run pdr run first)", path=processed)
-    console = Console()
-    table = Table(title=f"MSE gate ({spec.source})")
+    console = wide_console(stderr=False)
+    table = Table(title=f"MSE gate ({spec.source})", caption="MSE units: theta rad^2, omega (rad/s)^2, current A^2")
     for head in ("run", "way", "signal", "MSE", "threshold", "margin", ""):
         table.add_column(head, justify="left" if head in ("run", "way", "signal", "") else "right")
     for v in verdicts:
@@ -70,7 +70,7 @@ def gate(
             margin = "-" if c.margin is None else f"{100 * c.margin:+.0f} %"
             status = "[green]ok[/]" if c.threshold is not None and c.passed else (
                 "[red]FAIL[/]" if not c.passed else "not gated")
-            table.add_row(c.run, c.way, f"{c.signal} [{UNITS[c.signal]}]", f"{c.mse:.4g}" if c.mse is not None else "-",
+            table.add_row(c.run, c.way, c.signal, f"{c.mse:.4g}" if c.mse is not None else "-",
                           "-" if c.threshold is None else f"{c.threshold:.4g}", margin, status)
     console.print(table)
     failed = [v for v in verdicts if not v.passed]

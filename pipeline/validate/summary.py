@@ -38,12 +38,21 @@ def _g(v) -> str:
     return "-" if v is None or (isinstance(v, float) and v != v) else f"{v:.3g}"
 
 
+def wide_console(stderr: bool = True):
+    """A rich console that does not squeeze tables to 80 columns when writing to a file or CI log."""
+    import sys
+
+    from rich.console import Console
+
+    stream = sys.stderr if stderr else sys.stdout
+    return Console(stderr=stderr, width=None if stream.isatty() else 140)
+
+
 def render_summary(table: pd.DataFrame, console=None, limit: int = 60) -> None:
     """Console table: MSEs of both ways, switch counts, energy error (first ``limit`` runs)."""
-    from rich.console import Console
     from rich.table import Table
 
-    console = console or Console(stderr=True)
+    console = console or wide_console()
     if table.empty:
         console.print("no validated runs")
         return

@@ -1,0 +1,86 @@
+"""``pdr run`` end to end on 100 new 500-sample virtual-rig recordings.
+
+Reports recordings per second (target >= 10/s on two cores), where the time
+goes (seconds per stage summed over the workers), and a re-run with nothing
+changed through the real ``pdr`` command (target < 2 s).  Baselines measured
+in the same run: the model alone (closed loop + replay simulations of every
+recording, the part the issue wants to be a small share) and the same
+pipeline on one core.
+Run: python -m benchmarks.bench_pipeline [N]
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+N_RECORDINGS = 100
+
+
+def make_recordings(raw: Path, n: int, seed0: int = 1000) -> float:
+    from pipeline.rig.recording import RigSetup, make_recording, write_recording
+
+    t0 = time.perf_counter()
+    for i in range(n):
+        write_recording(make_recording(RigSetup(), seed=seed0 + i), raw, f"bench-{i:04d}")
+    return time.perf_counter() - t0
+
+
+def simulation_only(processed: Path) -> float:
+    """The model alone on every processed run: both simulations, nothing else."""
+    import pandas as pd
+
+    from pipeline.runs import RunPaths, load_config
+    from pipeline.validate.compare import simulate_both
+
+    runs = [RunPaths(p) for p in sorted(processed.iterdir()) if (p / "kinematics.parquet").is_file()]
+    inputs = [(pd.read_parquet(r.kinematics), load_config(r).plant_spec()) for r in runs]
+    t0 = time.perf_counter()
+    for kin, spec in inputs:
+        simulate_both(spec, kin)
+    return time.perf_counter() - t0
+
+
+def main(n: int = N_RECORDINGS) -> None:
+    from pipeline.run import run_pipeline
+
+    with tempfile.TemporaryDirectory(prefix="pdr-bench-") as tmp:
+        raw, processed, processed_1 = Path(tmp) / "raw", Path(tmp) / "processed", Path(tmp) / "processed-1core"
+        gen = make_recordings(raw, n)
+        print(f"generated {n} virtual-rig recordings (500 samples each) in {gen:.1f} s (not counted)")
+
+        report = run_pipeline(raw, processed, jobs=2)
+        failed = len(report.failed)
+        rate = n / report.wall_s
+        print(f"pdr run, 2 workers: {report.wall_s:.2f} s for {n} recordings = {rate:.1f} recordings/s "
+              f"(target >= 10/s){'' if not failed else f', {failed} FAILED'}")
+        stages = report.stage_seconds()
+        total = sum(stages.values())
+        print("  where the time goes (s summed over workers, % of worker time):")
+        for k, v in sorted(stages.items(), key=lambda kv: -kv[1]):
+            print(f"    {k:<13} {v:7.2f} s  {100 * v / total:5.1f} %   {1000 * v / n:6.1f} ms/recording")
+        overhead = 2 * report.wall_s - total
+        print(f"    {'pool/idle':<13} {overhead:7.2f} s  (2 x wall - worker time: start-up, imports, waiting)")
+
+        sim = simulation_only(processed)
+        print(f"baseline, the model alone (closed loop + replay, {n} runs): {sim:.2f} s = "
+              f"{100 * sim / report.wall_s:.1f} % of the end-to-end wall time, {1000 * sim / n:.1f} ms/recording")
+
+        report1 = run_pipeline(raw, processed_1, jobs=1)
+        print(f"baseline, same pipeline on 1 core: {report1.wall_s:.2f} s = {n / report1.wall_s:.1f} recordings/s; "
+              f"2 workers are {report1.wall_s / report.wall_s:.2f}x faster")
+
+        pdr = Path(sys.executable).with_name("pdr")
+        t0 = time.perf_counter()
+        proc = subprocess.run([str(pdr), "run", "--raw", str(raw), "--processed", str(processed)],
+                              capture_output=True, text=True)
+        rerun = time.perf_counter() - t0
+        print(f"re-run with nothing changed (the pdr command, process start included): {rerun:.2f} s "
+              f"(target < 2 s), exit {proc.returncode}: {proc.stderr.strip().splitlines()[0] if proc.stderr else ''}")
+
+
+if __name__ == "__main__":
+    main(int(sys.argv[1]) if len(sys.argv) > 1 else N_RECORDINGS)

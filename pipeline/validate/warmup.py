@@ -1,0 +1,10 @@
+"""Imported by ``pdr run``'s forkserver (``pipeline.run.PRELOAD``) before it forks workers.
+
+Importing it draws one overview figure, so each worker inherits a ready
+figure, loaded fonts and a cached background instead of paying for them on its
+first recording.  Nothing else imports this module.
+"""
+
+from pipeline.validate.plots import warm_up
+
+warm_up()
