@@ -81,9 +81,19 @@ class Measurement:
         return self.config.plant_spec(tuple(effects))
 
     def x0(self, spec: PlantSpec) -> tuple[float, float, float]:
-        """[I, w, delta] at the first sample, as validation takes it (the current read through the
-        model's sensor offset, so an offset candidate also corrects a misread initial current)."""
+        """[I, w, delta] at the first sample.  With the motor off there (dir = 0, the sketch not
+        yet driving) the pinion is at rest and the current is zero, whatever the sensor reads;
+        otherwise as validation takes it (the current read through the model's sensor offset)."""
+        if self.dir[0] == 0:
+            return (0.0, 0.0, float(self.theta[0]) * spec.params.R)
         return initial_state(self.kinematics, spec)
+
+    def simulate_ways(self, spec: PlantSpec, dir_log: np.ndarray) -> dict[str, SimResult]:
+        """Closed loop and replay at the recording's own instants, from ``x0`` (validation's two ways)."""
+        x0 = self.x0(spec)
+        dir0 = _first_dir(dir_log)
+        return {way: simulate(spec, self.t, x0=x0, dir0=dir0, dir_log=dir_log, closed_loop=way == "closed_loop")
+                for way in ("closed_loop", "replay")}
 
     def replay(self, spec: PlantSpec, x0: tuple[float, float, float] | None = None,
                dir_log: np.ndarray | None = None, n: int | None = None) -> SimResult:
@@ -94,13 +104,6 @@ class Measurement:
         return simulate(spec, self.t_fit[:m], x0=self.x0(spec) if x0 is None else x0, dir0=_first_dir(d),
                         dir_log=d[:m], closed_loop=False)
 
-    def kinematics_with(self, dir_log: np.ndarray) -> pd.DataFrame:
-        """The kinematics table with another command column (for validation's simulate_both)."""
-        if "dir" in self.kinematics.columns and np.array_equal(dir_log, self.kinematics["dir"].to_numpy()):
-            return self.kinematics
-        kin = self.kinematics.copy()
-        kin["dir"] = dir_log.astype(kin["dir"].dtype if "dir" in kin.columns else np.int8)
-        return kin
 
 
 # Sample instants are replayed on this grid while fitting: micros() stamps make every step

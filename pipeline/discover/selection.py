@@ -22,6 +22,7 @@ with both scores.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -33,7 +34,11 @@ from pipeline.discover.measurement import Measurement, ambiguous_switches, settl
 from pipeline.discover.residuals import events, noise_floor, residuals
 from pipeline.model.effects import CATALOGUE, Effect
 
-MIN_GAIN_FLOORS = 1.0        # held-out MSE removed, in noise variances
+# Held-out MSE a candidate must remove from some signal, in that signal's noise variances.  The
+# current's floor is the sensor's own white noise, over hundreds of samples a quarter of it is a
+# many-sigma effect; the angle's floor counts only quantisation and the clock (the data's own
+# integration is never that exact), so an angle gain must be a whole noise variance.
+MIN_GAIN_FLOORS = {"theta": 1.0, "current": 0.25}
 MIN_HELDOUT_SHARE = 0.5      # share of held-out structure removed
 MAX_WORSENING_FLOORS = 0.5   # no signal may get worse than this on held-out data
 MAX_DELTA_BIC = -10.0        # "strong" evidence on Kass & Raftery's scale
@@ -43,6 +48,7 @@ STRUCTURE_FLOORS = 25.0      # residual MSE above this many noise variances is s
 AT_NOISE_FLOORS = 3.0        # after an effect, stop when every signal is within this of its noise floor
 NEAR_TIE = 2.0              # runner-up leaves at most twice the winner's held-out structure (+1 noise variance)
 MAX_EFFECTS = 3
+TIME_BUDGET_S = 8.0          # a further round starts only if, at the last round's pace, it ends within this
 FULL_FITS = (4, 3, 3)        # per round, how many of the best-scanning candidates get the full assessment
 
 
@@ -156,10 +162,11 @@ def assess(ev: Evaluator, meas: Measurement, effects: tuple[Effect, ...], name: 
     sig_b = signature_energy(name, meas, ev, effects)
     sig_a = signature_energy(name, meas, ev, trial)
     a = Assessment(fit=fit, round=round_, delta_bic=float(delta_bic), heldout_share=share,
-                   heldout_gain_floors=gains, worst_worsening_floors=worse, structure_left=float(left),
+                   heldout_gain_floors=max(gains.values()), worst_worsening_floors=worse,
+                   structure_left=float(left),
                    signature_before=sig_b, signature_after=sig_a)
     a.checks = {
-        "improvement_vs_noise": a.heldout_gain_floors >= MIN_GAIN_FLOORS,
+        "improvement_vs_noise": any(g >= MIN_GAIN_FLOORS[s] for s, g in gains.items()),
         "heldout": a.heldout_share >= MIN_HELDOUT_SHARE and a.worst_worsening_floors <= MAX_WORSENING_FLOORS
                    and fit.heldout_nll_gain > 0,
         "bic": a.delta_bic <= MAX_DELTA_BIC,
@@ -169,22 +176,20 @@ def assess(ev: Evaluator, meas: Measurement, effects: tuple[Effect, ...], name: 
     return a
 
 
-def heldout_share(fit: Fit, floor: dict[str, float]) -> tuple[float, float, float]:
-    """(share of held-out structure removed, best MSE gain in noise variances, worst worsening).
+def heldout_share(fit: Fit, floor: dict[str, float]) -> tuple[float, dict[str, float], float]:
+    """(share of held-out structure removed, MSE gain per signal in noise variances, worst worsening).
 
-    Structure is MSE above the noise floor, in noise variances, summed over the
-    signals that have at least one noise variance of it; when none has, the
-    share is the gain itself (a small effect near the noise is judged by size).
+    Structure is MSE above the noise floor, in noise variances, in each signal
+    that has enough of it to be worth removing (``MIN_GAIN_FLOORS``); the share
+    is the best over those signals (an effect may live in one signal only, e.g.
+    a sensor offset in the current), 0 when there is nothing to explain.
     """
     ex_b = {s: fit.heldout_mse_before[s] / fl - 1.0 for s, fl in floor.items()}
     ex_a = {s: fit.heldout_mse_after[s] / fl - 1.0 for s, fl in floor.items()}
     gains = {s: ex_b[s] - ex_a[s] for s in floor}
-    structured = [s for s in floor if ex_b[s] >= 1.0]
-    if structured:
-        share = sum(gains[s] for s in structured) / sum(ex_b[s] for s in structured)
-    else:
-        share = max(gains.values())
-    return float(min(share, 1.0)), float(max(gains.values())), float(max(-g for g in gains.values()))
+    structured = [s for s in floor if ex_b[s] >= MIN_GAIN_FLOORS[s]]
+    share = max((gains[s] / ex_b[s] for s in structured), default=0.0)
+    return float(min(share, 1.0)), {s: float(g) for s, g in gains.items()}, float(max(-g for g in gains.values()))
 
 
 @dataclass
@@ -200,6 +205,7 @@ class Selection:
     failures: list[str]                   # parameter sets the simulator refused (scored as infinitely bad)
     command_before: np.ndarray            # the command replayed for the base model ...
     command_after: np.ndarray             # ... and the final one (differ only in an inferred motor start)
+    stopped_for_time: bool                # a further round was not started (TIME_BUDGET_S)
     meas: Measurement                     # the measurement fitted (inferred switches settled)
 
 
@@ -220,9 +226,15 @@ def select(meas: Measurement, names: tuple[str, ...] | None = None) -> Selection
     effects: tuple[Effect, ...] = ()
     rounds: list[list[Assessment | Screened]] = []
     near_tie = None
+    started, last_round = time.perf_counter(), 0.0
+    stopped_for_time = False
     for round_ in range(1, MAX_EFFECTS + 1):
         remaining = [n for n in names if n not in {e.name for e in effects}]
         if not remaining or (effects and max(excess(ev, effects).values()) < AT_NOISE_FLOORS):
+            break
+        round_start = time.perf_counter()
+        if round_ > 1 and round_start - started + last_round > TIME_BUDGET_S:
+            stopped_for_time = True
             break
         nll_now = ev.nll(ev.sim(effects))
         base_sens = sensitivity(ev, effects) if effects else None
@@ -251,6 +263,7 @@ def select(meas: Measurement, names: tuple[str, ...] | None = None) -> Selection
                                              runner.fit.name: runner.fit.heldout_nll_gain},
                         "runner_up_accepted": runner.accepted}
         effects = refit(ev, best.fit.effects) if len(best.fit.effects) > 1 else best.fit.effects
+        last_round = time.perf_counter() - round_start
     ex_before = excess(ev, ())
     ex_after = excess(ev, effects)
     structured = max(ex_after.values()) > STRUCTURE_FLOORS
@@ -261,4 +274,4 @@ def select(meas: Measurement, names: tuple[str, ...] | None = None) -> Selection
     return Selection(effects=effects, verdict=verdict, rounds=rounds, floor=floor, excess_before=ex_before,
                      excess_after=ex_after, near_tie=near_tie, simulations=ev.simulations,
                      failures=ev.failures, command_before=ev.command_for(()),
-                     command_after=ev.command_for(effects), meas=meas)
+                     command_after=ev.command_for(effects), meas=meas, stopped_for_time=stopped_for_time)

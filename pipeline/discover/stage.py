@@ -2,9 +2,10 @@
 
 Pure core (``discover``: kinematics + rig config -> ``Discovery``), imperative
 shell (``discover_run``: a processed run folder -> files in an output folder).
-The MSEs before/after are computed exactly as the validation stage computes
-them (``pipeline.validate.compare.simulate_both`` + ``metrics.signal_errors``),
-so ``pdr discover`` and ``pdr validate`` report the same numbers for the same model.
+The MSEs before/after are validation's measures (``metrics.signal_errors``, closed
+loop and replay at the recording's instants); the initial state differs only when the
+recording starts with the motor off, where discovery takes the current as zero rather
+than a noisy first reading (which would persist for La/Ra = 7 s).
 """
 
 from __future__ import annotations
@@ -24,7 +25,6 @@ from pipeline.discover.selection import Selection, select
 from pipeline.model.effects import Effect
 from pipeline.model.simulate import SimResult
 from pipeline.runs import RunPaths, load_config
-from pipeline.validate.compare import simulate_both
 from pipeline.validate.metrics import mse_only, signal_errors
 from pipeline.validate.stage import finite_or_none, load_kinematics
 
@@ -73,14 +73,12 @@ def discover(kin: pd.DataFrame, config: RigConfig, name: str) -> Discovery:
     t0 = time.perf_counter()
     sel = select(measurement_from_kinematics(kin, config, name))
     meas = sel.meas
-    kin_b = meas.kinematics_with(sel.command_before)
-    kin_a = meas.kinematics_with(sel.command_after)
-    base = simulate_both(meas.spec(), kin_b)
-    final = simulate_both(meas.spec(sel.effects), kin_a) if sel.effects else base
+    base = meas.simulate_ways(meas.spec(), sel.command_before)
+    final = meas.simulate_ways(meas.spec(sel.effects), sel.command_after) if sel.effects else base
     sig_b = signatures(meas, base["replay"], sel.floor)
     sig_a = signatures(meas, final["replay"], sel.floor)
     return Discovery(meas=meas, selection=sel, base=base, final=final,
-                     mse_before=_errors(kin_b, base), mse_after=_errors(kin_a, final),
+                     mse_before=_errors(meas.kinematics, base), mse_after=_errors(meas.kinematics, final),
                      localisation_before=describe(sig_b, sel.floor), localisation_after=describe(sig_a, sel.floor),
                      tables_before=binned(meas, base["replay"], sel.floor),
                      tables_after=binned(meas, final["replay"], sel.floor),
@@ -167,6 +165,9 @@ def discovery_json(d: Discovery, recording: str) -> dict:
     }
     if d.verdict == "unexplained":
         out["unexplained"] = unexplained_text(d)
+    if d.selection.stopped_for_time:
+        out["stopped_for_time"] = ("a further round of candidates was not started: at the pace of the last "
+                                   "round it would have passed the time budget")
     if d.selection.failures:
         out["simulation_failures"] = len(d.selection.failures)
     return finite_or_none(out)
