@@ -78,7 +78,7 @@ def _q(line: int, reason: str, text: str) -> Quarantined:
 
 # --------------------------------------------------------------------------- lines
 
-def split_lines(data: bytes, source: str) -> tuple[pa.StringArray, list[Quarantined], list[str]]:
+def split_lines(data: bytes, source: str) -> tuple[pa.Array, list[Quarantined], list[str]]:
     """Lines without terminators, trimmed and without IDE prefixes; undecodable lines blanked and reported."""
     notes: list[str] = []
     if not data.strip(b" \t\r\n"):
@@ -90,7 +90,7 @@ def split_lines(data: bytes, source: str) -> tuple[pa.StringArray, list[Quaranti
     if sep == b"\r":
         notes.append("CR-only line endings")
     if not data.endswith((b"\n", b"\r")):
-        notes.append("last line has no line ending (partial record at end of capture)")
+        notes.append("last line has no line ending (capture stopped mid-line, or the writer left it out)")
     bad: list[Quarantined] = []
     try:
         data.decode("utf-8")
@@ -109,9 +109,7 @@ def split_lines(data: bytes, source: str) -> tuple[pa.StringArray, list[Quaranti
     if offsets[-1] != len(data):
         offsets = np.append(offsets, len(data))
     n = len(offsets) - 1
-    lines = pa.StringArray.from_buffers(n, pa.py_buffer(offsets.astype(np.int32 if len(data) < 2**31 else np.int64)),
-                                        pa.py_buffer(data)) if len(data) < 2**31 else \
-        pa.LargeStringArray.from_buffers(n, pa.py_buffer(offsets), pa.py_buffer(data))
+    lines = pa.LargeStringArray.from_buffers(n, pa.py_buffer(offsets), pa.py_buffer(data))     # zero copy
     text = pc.utf8_trim(lines, characters=TRIM)
     has_prefix = pc.match_substring_regex(text, IDE_PREFIX)
     if pc.any(has_prefix).as_py():

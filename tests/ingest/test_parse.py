@@ -62,11 +62,35 @@ def test_board_reset_splits_segments_into_runs():
     assert runs[1].signals["segment"].iloc[0] == 1
     assert runs[1].signals["t_s"].iloc[0] == 0.0
     assert any("board reset" in d for d in report["defects"])
+    assert report["board_resets"] == 1
+
+
+def test_reset_without_header_restarts_time_near_zero():
+    body = b"\n".join(CLEAN.splitlines()[1:]) + b"\n"
+    runs, report = ingest(body + body)
+    assert [r.name for r in runs] == ["rec-seg1", "rec-seg2"]
+    assert runs[1].signals["line"].iloc[0] == 11 and runs[1].signals["t_s"].iloc[0] == 0.0
+    assert report["board_resets"] == 1
+    assert any("board reset without a header line" in d for d in report["defects"])
+
+
+def test_time_drop_with_counts_not_restarting_is_not_a_reset():
+    body = b"\n".join(CLEAN.splitlines()[1:]) + b"\n"
+    with pytest.raises(IngestError, match="time goes back from 450 to 0"):
+        ingest(body + body.replace(b"0,0,511,0\n", b"0,7,511,0\n", 1))
+
+
+def test_large_time_drop_is_not_a_reset():
+    data = CLEAN.replace(b"300,30", b"30300,30").replace(b"350,55", b"30350,55").replace(b"400,80", b"20400,0") \
+        .replace(b"450,90", b"20450,90")
+    with pytest.raises(IngestError, match="time goes back from 30350 to 20400"):
+        ingest(data)
 
 
 def test_rows_before_first_header_form_their_own_segment():
     runs, report = ingest(b"900,4,511,0\n950,4,511,0\n" + CLEAN)
     assert [r.name for r in runs] == ["rec-seg1", "rec-seg2"]
+    assert report["board_resets"] == 0
     assert runs[0].signals["line"].tolist() == [1, 2]
 
 

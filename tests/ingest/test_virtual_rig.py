@@ -29,6 +29,7 @@ ARTEFACT_CLASSES = {
     "garbled": Artefacts(garbled=6),
     "dropped": Artefacts(dropped=4),
     "reset": Artefacts(reset_after_s=3.0, reset_gap_s=2.0),
+    "reset_no_header": Artefacts(header=False, reset_after_s=3.0, reset_gap_s=2.0),
     "everything": Artefacts(ide_prefix="ide2", crlf=True, bom=True, comments=3, blank_lines=3,
                             partial_first_line=True, garbled=5, dropped=3, reset_after_s=3.0, reset_gap_s=2.0),
 }
