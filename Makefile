@@ -7,7 +7,7 @@ PY     := $(VENV)/bin/python
 PDR    := $(VENV)/bin/pdr
 STAMP  := $(VENV)/.installed-stamp
 
-.PHONY: all run test test-fast bench bench-discovery gate setup clean
+.PHONY: all run test test-fast bench bench-discovery gate setup clean viewer-deps
 
 all: run
 
@@ -19,11 +19,19 @@ $(STAMP): pyproject.toml
 
 setup: $(STAMP)
 
+# The headless Rerun viewer test needs a Vulkan driver: Mesa's software one (lavapipe).
+SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
+viewer-deps:
+	@if ! ls /usr/share/vulkan/icd.d/lvp_icd.*.json >/dev/null 2>&1; then \
+	  echo "installing mesa-vulkan-drivers (software Vulkan for the headless viewer test)"; \
+	  $(SUDO) apt-get update -qq && DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq mesa-vulkan-drivers; \
+	fi
+
 run: $(STAMP)
 	$(PDR) run
 
-test: $(STAMP)
-	$(PY) -m pytest -n 2 -q
+test: $(STAMP) viewer-deps
+	WGPU_BACKEND=vulkan $(PY) -m pytest -n 2 -q
 
 test-fast: $(STAMP)
 	$(PY) -m pytest -n 2 -q -m "not slow and not viewer"
