@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
-from mcap.reader import make_reader
+from mcap.reader import NonSeekingReader, make_reader
 
 from pipeline.config import default_config
 from pipeline.errors import PdrError
@@ -37,7 +37,7 @@ def _recording(tmp_path: Path, data: bytes = CLEAN, name: str = "rec") -> Path:
 
 def _read_mcap(path: Path):
     with open(path, "rb") as fh:
-        reader = make_reader(fh)
+        reader = make_reader(fh, validate_crcs=True)
         summary = reader.get_summary()
         messages = {}
         for schema, channel, message in reader.iter_messages():
@@ -104,6 +104,18 @@ def test_mcap_many_chunks_read_back_in_order(tmp_path):
     assert [m["counts"] for _, m in messages["/encoder"]] == (t % 977 - 400).tolist()
     assert [m["mode"] for _, m in messages["/command"]] == df["mode"].tolist()
     assert [m["current_a"] for _, m in messages["/current"]] == df["current_a"].tolist()
+
+
+def test_mcap_linear_scan_matches_indexed_read(tmp_path):
+    """A reader that ignores the summary (streams every record, checks every CRC) sees the same messages."""
+    result = ingest_recording(_recording(tmp_path, CLEAN + CLEAN), tmp_path / "processed")
+    for paths in result.runs:
+        indexed, *_ = _read_mcap(paths.mcap)
+        linear: dict = {}
+        with open(paths.mcap, "rb") as fh:
+            for _, channel, message in NonSeekingReader(fh, validate_crcs=True).iter_messages():
+                linear.setdefault(channel.topic, []).append((message.log_time, json.loads(message.data)))
+        assert linear == indexed
 
 
 def test_channels_for_columns_not_logged_are_absent(tmp_path):
