@@ -37,15 +37,25 @@ def _png(fig) -> bytes:
     return buf.getvalue()
 
 
-def signals_png(d: Discovery, way: str = "replay") -> bytes:
-    """Measured, base model and augmented model per signal, on one time axis."""
+def _per_signal_png(d: Discovery, title: str, draw) -> bytes:
+    """One panel per signal on a shared time axis; ``draw(ax, sig, field, unit, measured)``."""
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(10, 7.5))
     axes = fig.subplots(3, 1, sharex=True)
-    t = d.meas.t
     for ax, (sig, column, field, unit) in zip(axes, _SIGNALS):
-        y = _measured(d, column)
+        draw(ax, sig, field, unit, _measured(d, column))
+        ax.grid(alpha=0.3)
+    axes[-1].set_xlabel("t [s]")
+    fig.suptitle(title)
+    return _png(fig)
+
+
+def signals_png(d: Discovery, way: str = "replay") -> bytes:
+    """Measured, base model and augmented model per signal, on one time axis."""
+    t = d.meas.t
+
+    def draw(ax, sig, field, unit, y):
         if y is not None:
             ax.plot(t, y, color=_COLORS["measured"], lw=1.4, label="measured")
         ax.plot(t, getattr(d.base[way], field), color=_COLORS["base"], lw=1.0, label="base model")
@@ -53,36 +63,29 @@ def signals_png(d: Discovery, way: str = "replay") -> bytes:
             ax.plot(t, getattr(d.final[way], field), color=_COLORS["augmented"], lw=1.0, ls="--",
                     label="augmented model")
         ax.set_ylabel(f"{sig} [{unit}]")
-        ax.grid(alpha=0.3)
-    axes[0].legend(loc="upper right", fontsize=8)
-    axes[-1].set_xlabel("t [s]")
-    fig.suptitle(f"{d.meas.name}: {d.verdict} ({way.replace('_', ' ')})")
-    return _png(fig)
+        if sig == "theta":
+            ax.legend(loc="upper right", fontsize=8)
+
+    return _per_signal_png(d, f"{d.meas.name}: {d.verdict} ({way.replace('_', ' ')})", draw)
 
 
 def residuals_png(d: Discovery, way: str = "replay") -> bytes:
     """Residual (measured - model) before and after, per signal."""
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(10, 7.5))
-    axes = fig.subplots(3, 1, sharex=True)
     t = d.meas.t
-    for ax, (sig, column, field, unit) in zip(axes, _SIGNALS):
-        y = _measured(d, column)
+
+    def draw(ax, sig, field, unit, y):
         if y is None:
             ax.set_ylabel(f"{sig}: not logged")
-            continue
-        ax.plot(t, y - getattr(d.base[way], field), color=_COLORS["base"], lw=1.0,
-                label=f"before (MSE {d.mse_before[way].get(sig, float('nan')):.3g})")
-        ax.plot(t, y - getattr(d.final[way], field), color=_COLORS["augmented"], lw=1.0,
-                label=f"after (MSE {d.mse_after[way].get(sig, float('nan')):.3g})")
+            return
+        for label, sims, mse, color in (("before", d.base, d.mse_before, _COLORS["base"]),
+                                        ("after", d.final, d.mse_after, _COLORS["augmented"])):
+            ax.plot(t, y - getattr(sims[way], field), color=color, lw=1.0,
+                    label=f"{label} (MSE {mse[way].get(sig, float('nan')):.3g})")
         ax.axhline(0.0, color="0.5", lw=0.6)
         ax.set_ylabel(f"residual {sig} [{unit}]")
         ax.legend(loc="upper right", fontsize=8)
-        ax.grid(alpha=0.3)
-    axes[-1].set_xlabel("t [s]")
-    fig.suptitle(f"{d.meas.name}: residuals before and after ({way.replace('_', ' ')})")
-    return _png(fig)
+
+    return _per_signal_png(d, f"{d.meas.name}: residuals before and after ({way.replace('_', ' ')})", draw)
 
 
 def localisation_png(d: Discovery) -> bytes:
