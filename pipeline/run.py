@@ -268,8 +268,12 @@ def _execute(todo: list[tuple[Path, Stamp]], processed: Path, jobs: int, show_pr
 
 
 def run_pipeline(raw: Path, processed: Path, *, jobs: int = 2, force: bool = False,
-                 show_progress: bool = False) -> RunReport:
-    """The imperative shell of ``pdr run`` (also what the benchmark and tests call)."""
+                 show_progress: bool = False, code: str | None = None) -> RunReport:
+    """The imperative shell of ``pdr run`` (also what the benchmark and tests call).
+
+    ``code`` pins the code version in the stamps (default: ``code_version()``),
+    for callers that must not see a source tree being edited as a code change.
+    """
     raw, processed = Path(raw), Path(processed)
     if not raw.is_dir():
         raise PdrError("raw folder not found (expected a folder of <name>.csv recordings)", path=raw)
@@ -277,7 +281,7 @@ def run_pipeline(raw: Path, processed: Path, *, jobs: int = 2, force: bool = Fal
     report = RunReport()
     with processed_lock(processed):
         recordings = sorted(raw.glob("*.csv"))
-        code = code_version()
+        code = code if code is not None else code_version()
         todo = []
         for csv in recordings:
             stamp = stamp_for(csv, code)

@@ -1,0 +1,121 @@
+"""`pdr run` end to end on virtual-rig recordings: all stages, incremental, isolation of
+failures, the noise floor and the gate, and two concurrent runs on one folder."""
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from pipeline.model.effects import make_effect
+from pipeline.rig.recording import RigSetup, make_recording, write_recording
+from pipeline.run import code_version, run_pipeline
+from pipeline.runs import run_paths
+from pipeline.validate.gate import gate, load_thresholds
+
+SHIPPED_THRESHOLDS = Path(__file__).resolve().parents[1] / "raw" / "thresholds.toml"
+PDR = str(Path(sys.executable).with_name("pdr"))
+CODE = "pinned"       # the shared source tree may change under a test; the stamps must not notice
+
+# The virtual rig's noise settings (RigSetup defaults) imply these replay MSE floors:
+#   theta   encoder step 2*pi/6533.12 = 9.6e-4 rad -> step^2/12 = 7.7e-8, plus millis() rounding
+#           of the sample instants (up to 1 ms at ~2 rad/s): 3e-7 .. 1e-6 rad^2 observed
+#   current ACS712 noise sigma = one ADC step = 5/1024/0.185 = 26.4 mA -> 7.0e-4, plus ADC
+#           rounding 26.4^2/12 mA^2 = 5.8e-5: 7.5e-4 A^2
+CURRENT_FLOOR_A2 = (5 / 1024 / 0.185) ** 2 * (1 + 1 / 12)
+
+
+@pytest.fixture(scope="module")
+def recordings(tmp_path_factory):
+    raw = tmp_path_factory.mktemp("raw")
+    write_recording(make_recording(RigSetup(), seed=11), raw, "clean")
+    write_recording(make_recording(RigSetup(effects=(make_effect("driver_voltage_drop", {"Vd": 0.6}),)), seed=12),
+                    raw, "vdrop")
+    return raw
+
+
+@pytest.mark.slow
+def test_run_validates_every_recording_and_isolates_a_bad_one(recordings, tmp_path):
+    raw = tmp_path / "raw"
+    shutil.copytree(recordings, raw)
+    (raw / "garbage.csv").write_text("this is not\na capture\n")
+    processed = tmp_path / "processed"
+    report = run_pipeline(raw, processed, jobs=2, code=CODE)
+    status = {r["recording"]: r["status"] for r in report.ran}
+    assert status == {"clean.csv": "ok", "garbage.csv": "failed", "vdrop.csv": "ok"}
+    bad = next(r for r in report.failed)
+    assert "garbage.csv" in bad["error"] and bad["error"].startswith("ingest:")
+    for name in ("clean", "vdrop"):
+        paths = run_paths(processed, name)
+        for f in (paths.signals, paths.kinematics, paths.validation, paths.comparison, paths.rrd,
+                  paths.overview_png, paths.stamp):
+            assert f.is_file(), f
+        stamp = json.loads(paths.stamp.read_text())
+        assert stamp["recording"] == f"{name}.csv" and stamp["runs"] == [name]
+    summary = pd.read_csv(processed / "summary.csv")
+    assert list(summary["run"]) == ["clean", "vdrop"]
+    assert not list(processed.rglob(".*.tmp*"))
+
+    # Noise floor on the clean recording, and the gate with the shipped thresholds.
+    v = json.loads(run_paths(processed, "clean").validation.read_text())
+    replay = v["replay"]["signals"]
+    assert replay["theta"]["mse"] < 2e-6
+    assert 0.7 * CURRENT_FLOOR_A2 < replay["current"]["mse"] < 1.4 * CURRENT_FLOOR_A2
+    assert v["agreement"]["same_switches"] is True
+    verdicts = {x.run: x for x in gate(processed, load_thresholds(SHIPPED_THRESHOLDS))}
+    assert verdicts["clean"].passed
+    assert not verdicts["vdrop"].passed
+    out = subprocess.run([PDR, "gate", "--processed", str(processed), "--thresholds", str(SHIPPED_THRESHOLDS)],
+                         capture_output=True, text=True)
+    assert out.returncode == 1
+    assert "FAIL vdrop" in out.stderr and "FAIL clean" not in out.stderr
+
+    # Nothing changed: only the failing recording is tried again.
+    again = run_pipeline(raw, processed, jobs=2, code=CODE)
+    assert sorted(again.skipped) == ["clean.csv", "vdrop.csv"]
+    assert [r["recording"] for r in again.ran] == ["garbage.csv"]
+
+    # A changed rig file re-runs that recording only; a removed recording's runs go away.
+    (raw / "garbage.csv").unlink()
+    with open(raw / "clean.toml", "a") as fh:
+        fh.write("\n# edited\n")
+    third = run_pipeline(raw, processed, jobs=2, code=CODE)
+    assert [r["recording"] for r in third.ran] == ["clean.csv"] and third.skipped == ["vdrop.csv"]
+    (raw / "vdrop.csv").unlink()
+    fourth = run_pipeline(raw, processed, jobs=1, code=CODE)
+    assert fourth.removed == ["vdrop"] and not (processed / "vdrop").exists()
+    assert list(pd.read_csv(processed / "summary.csv")["run"]) == ["clean"]
+
+
+@pytest.mark.slow
+def test_two_concurrent_runs_leave_processed_consistent(recordings, tmp_path):
+    processed = tmp_path / "processed"
+    cmd = [PDR, "run", "--raw", str(recordings), "--processed", str(processed), "-j", "1"]
+    procs = [subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for _ in range(2)]
+    outs = [p.communicate(timeout=240) for p in procs]
+    assert [p.returncode for p in procs] == [0, 0], outs
+    lines = sorted(err.splitlines()[0] if not err.startswith("pdr: waiting") else err.splitlines()[1]
+                   for _, err in outs)
+    # One did the work, the other waited for the lock and found everything up to date.
+    assert any("2 recording(s) processed" in line for line in lines)
+    assert any("0 recording(s) processed (0 runs), 2 unchanged and skipped" in line for line in lines)
+    for name in ("clean", "vdrop"):
+        paths = run_paths(processed, name)
+        assert json.loads(paths.validation.read_text())["run"] == name
+        assert json.loads(paths.stamp.read_text())["runs"] == [name]
+    assert not list(processed.rglob(".*.tmp*"))
+
+
+def test_code_version_is_a_short_stable_hash():
+    assert code_version() == code_version()
+    assert len(code_version()) == 16 and int(code_version(), 16) >= 0
+
+
+def test_run_command_exit_status_and_missing_raw_folder(tmp_path):
+    out = subprocess.run([PDR, "run", "--raw", str(tmp_path / "nope"), "--processed", str(tmp_path / "p")],
+                         capture_output=True, text=True)
+    assert out.returncode == 2
+    assert "nope: raw folder not found" in out.stderr
