@@ -3,7 +3,7 @@
 The hot path is vectorised with pyarrow compute: lines are cut out of the
 byte buffer by offset (zero copy), trimmed, split on commas and converted
 column by column.  Python only touches the lines that fail that path, to say
-why (``line_reason``), so a clean 1,000,000-row file creates no per-row
+why (``parse_line``), so a clean 1,000,000-row file creates no per-row
 Python objects.  The grammar of a valid line lives in ``INT_RE``/``TIME_RE``
 and is shared by both paths.
 """
@@ -94,7 +94,7 @@ def split_lines(data: bytes, source: str) -> tuple[pa.Array, list[Quarantined], 
     bad: list[Quarantined] = []
     try:
         data.decode("utf-8")
-        clean = not _has_control_bytes(np.frombuffer(data, dtype=np.uint8))
+        clean = not has_control_bytes(np.frombuffer(data, dtype=np.uint8))
     except UnicodeDecodeError:
         clean = False
     if not clean:
@@ -118,7 +118,7 @@ def split_lines(data: bytes, source: str) -> tuple[pa.Array, list[Quarantined], 
     return text, bad, notes
 
 
-def _has_control_bytes(buf: np.ndarray) -> bool:
+def has_control_bytes(buf: np.ndarray) -> bool:
     """NUL and other C0 control bytes (tab, CR, LF allowed): a binary file, or serial noise on that line."""
     ctrl = (buf < 32) | (buf == 127)
     return bool(ctrl.any() and (ctrl & (buf != 9) & (buf != 10) & (buf != 13)).any())
@@ -130,7 +130,7 @@ def _blank_undecodable(data: bytes, sep: bytes) -> tuple[bytes, list[Quarantined
     for i, raw in enumerate(data.split(sep), start=1):
         try:
             raw.decode("utf-8")
-            ok = not _has_control_bytes(np.frombuffer(raw, dtype=np.uint8))
+            ok = not has_control_bytes(np.frombuffer(raw, dtype=np.uint8))
         except UnicodeDecodeError:
             ok = False
         if ok:
@@ -245,76 +245,11 @@ def rows_from_lines(text: pa.Array, line_numbers: np.ndarray, layout: dict[str, 
 
 # --------------------------------------------------------------------------- whole file
 
-_PLAIN = b"0123456789,-.\r\n"
-
-
-def parse_plain(data: bytes, columns: ColumnsConfig, source: str) -> ParsedFile | None:
-    """Fast path for a clean capture: ``pyarrow.csv.read_csv`` straight into typed columns.
-
-    Taken only when every byte after the header line is a digit, comma, sign,
-    point or line break, there are no blank lines, every row has the header's
-    field count, every field converts and time never goes back; anything else
-    returns None and the general path (``parse_capture``) reads the file line
-    by line, vectorised, with reasons for the lines it cannot read.
-    """
-    import pyarrow.csv as pcsv
-
-    body_start = data.find(b"\n") + 1
-    if body_start == 0 or not data.endswith(b"\n") or b"\n\n" in data or b"\n\r\n" in data:
-        return None
-    try:
-        first = data[:body_start].decode("utf-8").strip(TRIM)
-    except UnicodeDecodeError:
-        return None
-    if not first or first.startswith("#") or first.startswith("\ufeff") or _has_control_bytes(
-            np.frombuffer(data[:body_start], dtype=np.uint8)):
-        return None
-    names = header_fields(first)
-    header = not all(re.fullmatch(TIME_RE, f) for f in names)
-    body = data[body_start:] if header else data
-    if not len(body) or body.translate(None, _PLAIN):
-        return None
-    if header:
-        if columns.t_ms not in names or len(set(names)) != len(names):
-            return None
-        layout, notes = layout_from_header(names, columns, source, 1)
-    else:
-        try:
-            layout = positional_layout(len(names), columns, source)
-        except IngestError:
-            return None                 # the general path looks at every line before refusing
-        notes = [f"no header: {len(names)} fields read as {', '.join(layout)}"]
-    width = len(names)
-    col_names = [f"f{j}" for j in range(width)]
-    wanted = {col_names[j]: (logical, pa.float64() if logical == "t_raw" else pa.int64())
-              for logical, j in layout.items()}
-    try:
-        table = pcsv.read_csv(pa.py_buffer(body), read_options=pcsv.ReadOptions(column_names=col_names),
-                              parse_options=pcsv.ParseOptions(quote_char=False),
-                              convert_options=pcsv.ConvertOptions(column_types={k: t for k, (_, t) in wanted.items()},
-                                                                  include_columns=list(wanted), strings_can_be_null=False,
-                                                                  null_values=[], quoted_strings_can_be_null=False))
-    except pa.ArrowException:
-        return None
-    values = {wanted[k][0]: table.column(k).to_numpy() for k in wanted}
-    n = table.num_rows
-    if n == 0 or np.any(np.diff(values["t_raw"]) < 0):
-        return None
-    first_line = 2 if header else 1
-    seg = Segment(index=0, header_line=1 if header else None, layout=layout, width=width, data_lines=n,
-                  line=np.arange(first_line, first_line + n, dtype=np.int64), values=values, notes=notes)
-    return ParsedFile(segments=[seg], lines_total=n + (1 if header else 0), blank_lines=0, comment_lines=0,
-                      header_lines=[1] if header else [], quarantined=[], notes=[])
-
-
-def parse_capture(data: bytes, columns: ColumnsConfig, source: str, *, fast: bool = True) -> ParsedFile:
+def parse_capture(data: bytes, columns: ColumnsConfig, source: str) -> ParsedFile:
     """Bytes of one capture -> segments split at repeated headers, with every unread line reported.
 
-    ``fast=False`` skips the ``parse_plain`` shortcut (tests compare the two paths).
+    The general path; ``pipeline.ingest.plain.parse_plain`` is the shortcut for clean captures.
     """
-    plain = parse_plain(data, columns, source) if fast else None
-    if plain is not None:
-        return plain
     text, bad_bytes, notes = split_lines(data, source)
     n = len(text)
     length = pc.utf8_length(text).to_numpy(zero_copy_only=False)

@@ -9,7 +9,8 @@ from hypothesis import strategies as st
 
 from pipeline.config import default_config
 from pipeline.errors import PdrError
-from pipeline.ingest.parse import format_line, parse_capture, parse_line, parse_plain, rows_from_lines
+from pipeline.ingest.parse import format_line, parse_capture, parse_line, rows_from_lines
+from pipeline.ingest.plain import parse_plain
 from pipeline.ingest.stage import ingest_capture
 
 LAYOUT = {"t_raw": 0, "counts": 1, "adc": 2, "dir": 3}
@@ -103,7 +104,7 @@ def test_fast_path_and_general_path_agree(rows, crlf, header, width):
     text = (names + eol if header else "") + eol.join(format_line(r, layout, width) for r in rows) + eol
     data = text.encode()
     fast = parse_plain(data, CFG.columns, "prop.csv")
-    general = parse_capture(data, CFG.columns, "prop.csv", fast=False)
+    general = parse_capture(data, CFG.columns, "prop.csv")
     monotonic = all(a["t_raw"] <= b["t_raw"] for a, b in zip(rows, rows[1:]))
     assert (fast is not None) == monotonic
     if fast is None:
