@@ -287,15 +287,12 @@ def verify_rrd(path: Path) -> None:
 
 def write_rrd(target: Path, name: str, kin: pd.DataFrame, sims: dict[str, SimResult], validation: dict,
               guard: float, phase_stats: pd.DataFrame | None = None, verify: bool = True) -> None:
-    """Save to a temporary ``.rrd`` beside ``target``, close the stream, verify, rename."""
-    import os
-
+    """Save to a temporary file beside ``target``, close the stream, verify, rename."""
     import rerun as rr
 
-    target = Path(target)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    tmp = target.with_name(f".{target.stem}.{os.getpid()}.tmp.rrd")
-    try:
+    from pipeline.io.atomic import atomic_path
+
+    with atomic_path(Path(target)) as tmp:
         rec = rr.RecordingStream("pdr", recording_id=name)
         rec.save(tmp, default_blueprint=blueprint())
         log_run(rec, name, kin, sims, validation, guard, phase_stats)
@@ -303,9 +300,3 @@ def write_rrd(target: Path, name: str, kin: pd.DataFrame, sims: dict[str, SimRes
         rec.disconnect()
         if verify:
             verify_rrd(tmp)
-        with open(tmp, "rb") as fh:
-            os.fsync(fh.fileno())
-        os.replace(tmp, target)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
