@@ -331,6 +331,22 @@ def refit(ev: Evaluator, effects: tuple[Effect, ...], width: float = 0.2) -> tup
     return tuple(current)
 
 
+def polish(ev: Evaluator, effects: tuple[Effect, ...], steps: int = 4) -> tuple[Effect, ...]:
+    """Joint Gauss-Newton steps over all parameters, each kept only if the likelihood improves:
+    confusable pairs (a softer spring and a backlash) trade off along a valley that one
+    parameter at a time crosses only slowly."""
+    best, best_nll = effects, ev.nll(ev.sim(effects))
+    for _ in range(steps):
+        sens = sensitivity(ev, best)
+        step, _ = gauss_newton(sens.r0, sens.jac)
+        trial = moved_effects(best, step, trust=0.3)
+        nll = ev.nll(ev.sim(trial))
+        if not nll < best_nll - 1e-6:
+            break
+        best, best_nll = trial, nll
+    return best
+
+
 def autocorrelation_time(r: np.ndarray, max_lag: int = 50) -> float:
     """1 + 2 sum rho_k (to the first negative rho): how many samples one independent one is worth."""
     r = r - r.mean()

@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pipeline.discover.candidates import (
-    Evaluator, Fit, Scan, fit_candidate, folds_by_cycle, parameter_of, refit, scan, sensitivity,
+    Evaluator, Fit, Scan, fit_candidate, folds_by_cycle, parameter_of, polish, refit, scan, sensitivity,
 )
 from pipeline.discover.measurement import Measurement, ambiguous_switches, settle_switches
 from pipeline.discover.residuals import events, noise_floor, residuals
@@ -48,7 +48,7 @@ STRUCTURE_FLOORS = 25.0      # residual MSE above this many noise variances is s
 AT_NOISE_FLOORS = 3.0        # after an effect, stop when every signal is within this of its noise floor
 NEAR_TIE = 2.0              # runner-up leaves at most twice the winner's held-out structure (+1 noise variance)
 MAX_EFFECTS = 3
-TIME_BUDGET_S = 8.0          # a further round starts only if, at the last round's pace, it ends within this
+TIME_BUDGET_S = 8.0          # CPU s: a further round starts only if, at the last round's pace, it ends within this
 FULL_FITS = (4, 3, 3)        # per round, how many of the best-scanning candidates get the full assessment
 
 
@@ -226,13 +226,13 @@ def select(meas: Measurement, names: tuple[str, ...] | None = None) -> Selection
     effects: tuple[Effect, ...] = ()
     rounds: list[list[Assessment | Screened]] = []
     near_tie = None
-    started, last_round = time.perf_counter(), 0.0
+    started, last_round = time.process_time(), 0.0
     stopped_for_time = False
     for round_ in range(1, MAX_EFFECTS + 1):
         remaining = [n for n in names if n not in {e.name for e in effects}]
         if not remaining or (effects and max(excess(ev, effects).values()) < AT_NOISE_FLOORS):
             break
-        round_start = time.perf_counter()
+        round_start = time.process_time()
         if round_ > 1 and round_start - started + last_round > TIME_BUDGET_S:
             stopped_for_time = True
             break
@@ -262,8 +262,8 @@ def select(meas: Measurement, names: tuple[str, ...] | None = None) -> Selection
                         "heldout_nll_gain": {best.fit.name: best.fit.heldout_nll_gain,
                                              runner.fit.name: runner.fit.heldout_nll_gain},
                         "runner_up_accepted": runner.accepted}
-        effects = refit(ev, best.fit.effects) if len(best.fit.effects) > 1 else best.fit.effects
-        last_round = time.perf_counter() - round_start
+        effects = polish(ev, refit(ev, best.fit.effects)) if len(best.fit.effects) > 1 else best.fit.effects
+        last_round = time.process_time() - round_start
     ex_before = excess(ev, ())
     ex_after = excess(ev, effects)
     structured = max(ex_after.values()) > STRUCTURE_FLOORS
