@@ -14,18 +14,20 @@ def discover(
     recording: str = typer.Argument(..., help="A raw CSV path (ingested and derived on the fly), "
                                               "a processed run folder or a run name."),
     json_out: bool = typer.Option(False, "--json", help="Print one JSON object (INTERFACE.md) on stdout."),
-    adopt: bool = typer.Option(False, "--adopt", help="Write the augmented [effects] into the recording's "
+    adopt: bool = typer.Option(False, "--adopt", help="Write the augmented \\[effects] table into the recording's "
                                                       "sidecar TOML (raw/<name>.toml). Never done without it."),
     out: Optional[Path] = typer.Option(None, "--out", help="Folder for the report, plots, TOML snippet and "
-                                                           ".rrd [default: <processed>/discovery/<run>]."),
+                                                           ".rrd (default: <processed>/discovery/<run>)."),
     processed: Path = typer.Option(DEFAULT_PROCESSED, "--processed", help="Folder of processed runs."),
     no_rrd: bool = typer.Option(False, "--no-rrd", help="Skip the Rerun recording."),
 ) -> None:
     """Localise where model and measurement disagree, fit every catalogued effect, keep only what
     the evidence supports, and report the verdict (explained / none / unexplained).
 
-    Example: pdr discover raw/paper_run.csv --json    (then: pdr validate raw/paper_run.csv
-    --model processed/discovery/paper_run/effects.toml, or pdr discover raw/paper_run.csv --adopt)
+    Example: pdr discover raw/paper_run.csv --json
+
+    Then: pdr validate raw/paper_run.csv --model processed/discovery/paper_run/effects.toml,
+    or adopt it: pdr discover raw/paper_run.csv --adopt
     """
     import tempfile
 
