@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import pyarrow as pa
 import pyarrow.parquet as pq
 
 from pipeline.config import RigConfig
@@ -27,9 +28,16 @@ CHANNEL_GROUPS = {
 PARQUET_OPTIONS = {"compression": "snappy", "use_dictionary": ["segment", "adc", "dir", "mode"]}
 
 
-def signals_table(df: pd.DataFrame, where: str):
-    """The checked Arrow table with units in field metadata (schemas/signals.json)."""
-    return load_schema("signals").to_arrow(df, where)
+def signals_table(df: pd.DataFrame, where: str) -> pa.Table:
+    """The checked Arrow table with units in field metadata (schemas/signals.json).
+
+    As ``TableSchema.to_arrow``, but built from the columns' arrays (zero copy) instead of
+    ``Table.from_pandas``, which costs ~35 ms per million rows for pandas metadata nobody reads.
+    """
+    schema = load_schema("signals")
+    schema.check(df, where)
+    arrow = schema.arrow_schema(df.columns)
+    return pa.Table.from_arrays([pa.array(df[f.name].to_numpy(), f.type) for f in arrow], schema=arrow)
 
 
 def mcap_channels(df: pd.DataFrame):
