@@ -85,6 +85,10 @@ def test_mcap_round_trip_values_schemas_metadata(tmp_path):
             assert [m[name] for _, m in msgs] == df[name].tolist()
         assert schemas[topic] == load_schema("signals").json_schema(list(names), title="pdr." + topic.strip("/"))
         assert encodings[topic] == ("json", "jsonschema")
+        for name in names:
+            unit = load_schema("signals").column(name).unit
+            assert schemas[topic]["properties"][name]["description"].endswith(f"[{unit}]")
+    assert schemas["/encoder"]["properties"]["theta_rad"]["description"].endswith("[rad]")
     assert json.loads(metadata["rig_config"]["config"]) == default_config().to_dict()
     assert metadata["recording"]["sha256"] == result.report["sha256"]
     assert summary.statistics.message_count == 3 * len(df)
