@@ -87,7 +87,7 @@ class Assessment:
             "heldout_structure_left_noise_floors": self.structure_left,
             "heldout_mse_before": f.heldout_mse_before, "heldout_mse_after": f.heldout_mse_after,
             "signature_before": self.signature_before, "signature_after": self.signature_after,
-            "checks": dict(self.checks), "accepted": self.accepted,
+            "checks": {k: bool(v) for k, v in self.checks.items()}, "accepted": bool(self.accepted),
         }
 
 
@@ -261,7 +261,7 @@ def select(meas: Measurement, names: tuple[str, ...] | None = None) -> Selection
                                            runner.fit.name: runner.structure_left},
                         "heldout_nll_gain": {best.fit.name: best.fit.heldout_nll_gain,
                                              runner.fit.name: runner.fit.heldout_nll_gain},
-                        "runner_up_accepted": runner.accepted}
+                        "runner_up_accepted": bool(runner.accepted)}
         effects = polish(ev, refit(ev, best.fit.effects)) if len(best.fit.effects) > 1 else best.fit.effects
         last_round = time.process_time() - round_start
     ex_before = excess(ev, ())
