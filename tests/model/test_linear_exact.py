@@ -36,7 +36,6 @@ def t():
     return jittered_times(500, seed=3)
 
 
-@pytest.mark.slow
 def test_closed_loop_uneven_spacing_matches_solve_ivp(spec, t):
     fast = simulate(spec, t)
     ref = simulate_ivp(spec, t)
@@ -44,7 +43,6 @@ def test_closed_loop_uneven_spacing_matches_solve_ivp(spec, t):
     _close(fast, ref)
 
 
-@pytest.mark.slow
 def test_replay_with_loop_delay_and_offset_matches_solve_ivp(spec, t):
     d = simulate(spec, t).dir.copy()
     d[:7] = 0                                           # motor off before the sketch starts
