@@ -44,6 +44,38 @@ def simulation_only(processed: Path) -> float:
     return time.perf_counter() - t0
 
 
+def _noop_rerun(raw: Path, processed: Path) -> str:
+    pdr = Path(sys.executable).with_name("pdr")
+    t0 = time.perf_counter()
+    proc = subprocess.run([str(pdr), "run", "--raw", str(raw), "--processed", str(processed)],
+                          capture_output=True, text=True)
+    secs = time.perf_counter() - t0
+    first = proc.stderr.strip().splitlines()[0] if proc.stderr else ""
+    return f"{secs:.2f} s (target < 2 s), exit {proc.returncode}: {first}"
+
+
+def noise_floor(processed: Path) -> None:
+    """MSE spread over clean recordings, closed-loop switch slips, and the shipped gate on them."""
+    import pandas as pd
+
+    from pipeline.validate.gate import gate, load_thresholds
+
+    table = pd.read_csv(processed / "summary.csv")
+    print(f"  noise floor over {len(table)} clean recordings (replay MSE: median / max):")
+    for sig, unit in (("theta", "rad^2"), ("omega", "(rad/s)^2"), ("current", "A^2")):
+        col = table[f"replay_{sig}_mse"]
+        print(f"    {sig:<8} {col.median():.3g} / {col.max():.3g} {unit}")
+    slipped = int(((table["closed_loop_switches"] != table["measured_switches"])
+                   | (table["closed_loop_max_slip_s"].fillna(0) > 0)).sum())
+    print(f"  closed loop: {slipped} of {len(table)} runs had a switch decided at another sample; "
+          f"closed-loop MSE max: theta {table['closed_loop_theta_mse'].max():.3g} rad^2, "
+          f"omega {table['closed_loop_omega_mse'].max():.3g} (rad/s)^2, "
+          f"current {table['closed_loop_current_mse'].max():.3g} A^2")
+    thresholds = Path(__file__).resolve().parents[1] / "raw" / "thresholds.toml"
+    verdicts = gate(processed, load_thresholds(thresholds))
+    print(f"  shipped gate (raw/thresholds.toml): {sum(v.passed for v in verdicts)} of {len(verdicts)} clean runs pass")
+
+
 def main(n: int = N_RECORDINGS) -> None:
     from pipeline.run import run_pipeline
 
@@ -65,6 +97,10 @@ def main(n: int = N_RECORDINGS) -> None:
         overhead = 2 * report.wall_s - total
         print(f"    {'pool/idle':<13} {overhead:7.2f} s  (2 x wall - worker time: start-up, imports, waiting)")
 
+        rerun = _noop_rerun(raw, processed)
+        print(f"re-run with nothing changed (the pdr command, process start included): {rerun}")
+        noise_floor(processed)
+
         sim = simulation_only(processed)
         print(f"baseline, the model alone (closed loop + replay, {n} runs): {sim:.2f} s = "
               f"{100 * sim / report.wall_s:.1f} % of the end-to-end wall time, {1000 * sim / n:.1f} ms/recording")
@@ -73,13 +109,6 @@ def main(n: int = N_RECORDINGS) -> None:
         print(f"baseline, same pipeline on 1 core: {report1.wall_s:.2f} s = {n / report1.wall_s:.1f} recordings/s; "
               f"2 workers are {report1.wall_s / report.wall_s:.2f}x faster")
 
-        pdr = Path(sys.executable).with_name("pdr")
-        t0 = time.perf_counter()
-        proc = subprocess.run([str(pdr), "run", "--raw", str(raw), "--processed", str(processed)],
-                              capture_output=True, text=True)
-        rerun = time.perf_counter() - t0
-        print(f"re-run with nothing changed (the pdr command, process start included): {rerun:.2f} s "
-              f"(target < 2 s), exit {proc.returncode}: {proc.stderr.strip().splitlines()[0] if proc.stderr else ''}")
 
 
 if __name__ == "__main__":
