@@ -79,7 +79,7 @@ def split_restarts(seg: Segment, unit: str) -> list[Segment]:
 
 def clean_segment(seg: Segment, cfg: RigConfig, source: str) -> tuple[np.ndarray, int]:
     """Make a segment's time non-decreasing or refuse; phase-shifted rows are re-framed first."""
-    before = (seg.line.copy(), dict(seg.values), list(seg.quarantined))
+    rows_before = len(seg.line)
     t, wraps, back = _order_time(seg, cfg)
     if back is None:
         return t, wraps
@@ -94,7 +94,7 @@ def clean_segment(seg: Segment, cfg: RigConfig, source: str) -> tuple[np.ndarray
     trial = Segment(seg.index, seg.header_line, seg.layout, seg.width, seg.data_lines, line, values,
                     quarantined, list(seg.notes))
     t2, wraps2, back2 = _order_time(trial, cfg)
-    if back2 is None and len(trial.line) >= 0.9 * len(before[0]):
+    if back2 is None and len(trial.line) >= 0.9 * rows_before:
         seg.line, seg.values, seg.quarantined = trial.line, trial.values, trial.quarantined
         seg.notes.append(f"phase-shifted rows: fields re-framed into {seg.width}-field records "
                          f"({len(trial.line)} records, {leftover} trailing field(s) left over)")

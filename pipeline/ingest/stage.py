@@ -51,6 +51,24 @@ def _refuse_if_unreadable(parsed: ParsedFile, quarantined: list[Quarantined], ke
                           f"first at line {first.line}: {first.reason}", path=source, line=first.line)
 
 
+def _current_zeros(parsed: ParsedFile, flagged: dict[int, str], cfg: RigConfig, source: str
+                   ) -> tuple[dict[int, ZeroEstimate], dict[int, str]]:
+    """The ACS712 zero of each segment that logs current; a segment with no samples at rest (zero_v
+    = "auto") is flagged while another segment can still be used, else the recording is refused."""
+    zeros, refusals = {}, {}
+    for seg in parsed.segments:
+        if seg.index in flagged or "adc" not in seg.values:
+            continue
+        try:
+            zeros[seg.index] = estimate_zero(seg.values, cfg, source)
+        except IngestError as err:
+            refusals[seg.index] = f"not made a run: {err.detail}"
+            last = err
+    if refusals and len(refusals) + len(flagged) == len(parsed.segments):
+        raise last
+    return zeros, refusals
+
+
 def ingest_capture(data: bytes, cfg: RigConfig, source: str, stem: str) -> tuple[list[RunData], dict]:
     """Bytes of one capture -> the signals table and report of each kept segment, and the file report."""
     parsed = parse_plain(data, cfg.columns, source) or parse_capture(data, cfg.columns, source)
@@ -62,9 +80,13 @@ def ingest_capture(data: bytes, cfg: RigConfig, source: str, stem: str) -> tuple
                          key=lambda q: q.line)
     kept_rows = sum(len(s.line) for s in parsed.segments)
     _refuse_if_unreadable(parsed, quarantined, kept_rows, cfg, source)
-    keep = [s for s in parsed.segments if len(s.line) >= MIN_SEGMENT_ROWS]
-    if not keep:
+    flagged: dict[int, str] = {s.index: f"fewer than {MIN_SEGMENT_ROWS} readable rows: not made a run"
+                               for s in parsed.segments if len(s.line) < MIN_SEGMENT_ROWS}
+    if len(flagged) == len(parsed.segments):
         raise IngestError(f"no segment with at least {MIN_SEGMENT_ROWS} readable rows", path=source)
+    zeros, refusals = _current_zeros(parsed, flagged, cfg, source)
+    flagged |= refusals
+    keep = [s for s in parsed.segments if s.index not in flagged]
     names = {s.index: stem if len(keep) == 1 else f"{stem}-seg{k + 1}" for k, s in enumerate(keep)}
     runs, seg_reports = [], []
     for seg, (t, wraps) in zip(parsed.segments, times):
@@ -72,11 +94,11 @@ def ingest_capture(data: bytes, cfg: RigConfig, source: str, stem: str) -> tuple
                  "rows_quarantined": len(seg.quarantined), "columns": sorted(seg.layout),
                  "notes": seg.notes, "run": names.get(seg.index)}
         if seg.index not in names:
-            entry["flagged"] = f"fewer than {MIN_SEGMENT_ROWS} readable rows: not made a run"
+            entry["flagged"] = flagged[seg.index]
             seg_reports.append(entry)
             continue
         t_s = seconds_from_start(t, cfg.columns.time_unit)
-        zero: ZeroEstimate | None = estimate_zero(seg.values, cfg, source) if "adc" in seg.values else None
+        zero = zeros.get(seg.index)
         df = to_signals(seg.values, seg.line, t_s, seg.index, cfg, zero)
         entry |= {"first_line": int(seg.line[0]), "last_line": int(seg.line[-1]), "counter_wraps": wraps,
                   "timing": timing_stats(t, cfg.columns.time_unit, seg.line, cfg.controller.period_s),

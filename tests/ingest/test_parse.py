@@ -201,6 +201,15 @@ def test_zero_auto_refuses_without_samples_at_rest(tmp_path):
         ingest(b"t_ms,counts,adc,dir\n0,0,530,1\n50,3,540,1\n100,9,541,1\n", cfg)
 
 
+def test_zero_auto_flags_a_segment_without_rest_when_another_has_it(tmp_path):
+    cfg = config_from_toml(tmp_path, '[current_sensor]\nzero_v = "auto"\n')
+    driven = b"t_ms,counts,adc,dir\n0,0,530,1\n50,3,540,1\n100,9,541,1\n"
+    runs, report = ingest(driven + CLEAN, cfg)
+    assert [r.name for r in runs] == ["rec"]
+    assert runs[0].signals["segment"].iloc[0] == 1
+    assert "samples at rest" in report["segments"][0]["flagged"]
+
+
 def test_timing_report_gaps_and_period_contradiction():
     data = CLEAN.replace(b"250,12,545,1\n", b"")
     _, report = ingest(data)
