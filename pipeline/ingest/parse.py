@@ -306,7 +306,7 @@ def parse_capture(data: bytes, columns: ColumnsConfig, source: str) -> ParsedFil
                           f"expected a UTF-8 CSV capture", path=source, line=bad_bytes[0].line)
     if not segments:
         raise IngestError("no recognisable columns: no data rows of numbers found", path=source)
-    return ParsedFile(segments=segments, lines_total=n, blank_lines=int(blank.sum()),
+    return ParsedFile(segments=segments, lines_total=n, blank_lines=int(blank.sum()) - len(bad_bytes),
                       comment_lines=int(comment.sum()), header_lines=[i + 1 for i in header_idx],
                       quarantined=quarantined, notes=notes)
 

@@ -230,3 +230,11 @@ def test_only_pdr_errors_escape_for_odd_input():
     for data in (b",,,\n,,,\n", b"t_ms,counts,adc,dir\n", b"#only comments\n", b"t_ms,counts\n1,2\n"):
         with pytest.raises(PdrError):
             ingest(data)
+
+
+def test_noise_bytes_on_a_line_quarantine_that_line_only():
+    data = CLEAN.replace(b"150,0,510,0", b"150,0,5\xff\x0010,0")
+    runs, report = ingest(data)
+    assert quarantined_lines(report) == [5]
+    assert report["quarantined"][0]["reason"] == "binary or non-UTF-8 bytes"
+    assert report["lines"]["blank"] == 0 and len(runs[0].signals) == 9
