@@ -1,0 +1,13 @@
+"""The ingest stage: raw Arduino CSV captures -> schema-checked Parquet and MCAP, with units.
+
+Entry points for other stages:
+  ``stage.ingest_recording(csv_path, processed, *, config=None) -> IngestResult``
+      ``.runs`` (``RunPaths``, one per kept segment), ``.report`` (dict, also in each run's
+      ``ingest_report.json``), ``.tables`` (run name -> signals DataFrame).
+  ``stage.ingest_capture(data, cfg, source, stem) -> (list[RunData], report)``: the pure core.
+
+Modules: ``plain`` (fast path for clean captures), ``parse`` (general line-by-line path,
+quarantine, re-framing), ``segments`` (range rules, time order, resets), ``timing``,
+``convert`` (units, zero_v "auto"), ``mcap_bulk`` (vectorised MCAP writer), ``write``
+(files, atomic), ``cli`` (``pdr ingest``).
+"""
