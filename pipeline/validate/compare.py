@@ -95,10 +95,11 @@ def switch_differences(t: np.ndarray, d_measured: np.ndarray, d_sim: np.ndarray)
 def oscillation_stats(t: np.ndarray, theta: np.ndarray, d: np.ndarray, guard: float) -> dict[str, float]:
     """Period, amplitude and overshoot of the bang-bang oscillation (Sec. IV-B).
 
-    Per completed half-cycle (a run of constant command ended by a switch) the
-    peak is the extreme angle in the commanded direction; the overshoot is how
-    far that peak passed the guard, because the command reverses only at the
-    next 50 ms sample and the current needs La/Ra to reverse.
+    A switch to q2 is decided when theta has reached +theta_g, but the pinion
+    keeps turning: the command reverses only at the next 50 ms sample and the
+    current needs La/Ra to reverse.  So for every pair of consecutive switches
+    the peak is the extreme angle between them, on the side of the guard that
+    triggered the first one; the overshoot is how far that peak passed the guard.
     """
     idx = switch_indices(d)
     nan = float("nan")
@@ -108,7 +109,7 @@ def oscillation_stats(t: np.ndarray, theta: np.ndarray, d: np.ndarray, guard: fl
     peaks = []
     for a, b in zip(idx[:-1], idx[1:]):
         seg = theta[a:b + 1]
-        peaks.append(seg.max() if d[a] > 0 else -seg.min())
+        peaks.append(seg.max() if d[a] < 0 else -seg.min())
     peaks = np.array(peaks)
     out.update(n_half_cycles=int(len(peaks)), period_s=float(2.0 * np.mean(np.diff(t[idx]))),
                amplitude_rad=float(peaks.mean()), overshoot_rad=float(np.mean(peaks - guard)))

@@ -180,7 +180,7 @@ def _fmt(v) -> str:
     return str(v)
 
 
-def stats_markdown(name: str, validation: dict, phase_stats: pd.DataFrame | None = None) -> str:
+def stats_markdown(name: str, validation: dict, derived: dict[str, pd.DataFrame] | None = None) -> str:
     """The statistics panel: metrics of both ways, oscillation/overshoot, energy, per-phase table."""
     ways = ("closed_loop", "replay")
     lines = [f"# {name}", "", "## Errors (measured - simulated)", "",
@@ -209,8 +209,11 @@ def stats_markdown(name: str, validation: dict, phase_stats: pd.DataFrame | None
         err = validation[way]["energy_error"]
         extra = f" ({err['paper_pct']:+.2f} % vs measured)" if err else ""
         lines.append(f"- {way}: {validation[way]['energy']['energy_paper_j']:.3f} J{extra}")
-    if phase_stats is not None and len(phase_stats):
-        lines += ["", "## Per phase (derive stage)", "", *_md_table(phase_stats)]
+    for title, key in (("Per phase (derive stage)", "phases"), ("Guard overshoot per crossing (derive stage)",
+                                                                "overshoot")):
+        table = (derived or {}).get(key)
+        if table is not None and len(table):
+            lines += ["", f"## {title}", "", *_md_table(table)]
     return "\n".join(lines) + "\n"
 
 
@@ -223,7 +226,7 @@ def _md_table(df: pd.DataFrame) -> list[str]:
 
 
 def log_run(rec, name: str, kin: pd.DataFrame, sims: dict[str, SimResult], validation: dict,
-            guard: float, phase_stats: pd.DataFrame | None = None) -> None:
+            guard: float, derived: dict[str, pd.DataFrame] | None = None) -> None:
     """Log one run into an open recording stream (no file handling here)."""
     import rerun as rr
 
@@ -254,7 +257,7 @@ def log_run(rec, name: str, kin: pd.DataFrame, sims: dict[str, SimResult], valid
     _mode_lane(rec, "mode/closed_loop", t, sims["closed_loop"].dir)
     _events(rec, t, theta, d, sims["closed_loop"], guard)
     _trajectory(rec, kin, sims, guard)
-    rec.log("stats", rr.TextDocument(stats_markdown(name, validation, phase_stats),
+    rec.log("stats", rr.TextDocument(stats_markdown(name, validation, derived),
                                      media_type=rr.MediaType.MARKDOWN), static=True)
 
 
@@ -286,7 +289,7 @@ def verify_rrd(path: Path) -> None:
 
 
 def write_rrd(target: Path, name: str, kin: pd.DataFrame, sims: dict[str, SimResult], validation: dict,
-              guard: float, phase_stats: pd.DataFrame | None = None, verify: bool = True) -> None:
+              guard: float, derived: dict[str, pd.DataFrame] | None = None, verify: bool = True) -> None:
     """Save to a temporary file beside ``target``, close the stream, verify, rename."""
     import rerun as rr
 
@@ -295,7 +298,7 @@ def write_rrd(target: Path, name: str, kin: pd.DataFrame, sims: dict[str, SimRes
     with atomic_path(Path(target)) as tmp:
         rec = rr.RecordingStream("pdr", recording_id=name)
         rec.save(tmp, default_blueprint=blueprint())
-        log_run(rec, name, kin, sims, validation, guard, phase_stats)
+        log_run(rec, name, kin, sims, validation, guard, derived)
         rec.flush()
         rec.disconnect()
         if verify:

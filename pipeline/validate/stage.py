@@ -71,11 +71,24 @@ def load_kinematics(paths: RunPaths) -> pd.DataFrame:
     return kin
 
 
-def _phase_stats(paths: RunPaths) -> pd.DataFrame | None:
-    """The derive stage's per-phase table, shown in the viewer's statistics panel when present."""
-    if not paths.phases.is_file():
-        return None
-    return pd.read_parquet(paths.phases).head(40)
+# The derive stage's tables shown in the viewer's statistics panel, with the columns worth reading there.
+DERIVED_COLUMNS = {
+    "phases": ("phase", "start_s", "duration_s", "mode", "peak_omega_rad_s", "peak_current_a",
+               "theta_extreme_rad", "end_reason"),
+    "overshoot": ("crossing", "direction", "trigger_t_s", "trigger_theta_rad", "overshoot_rad", "turn_delay_s",
+                  "current_reversal_delay_s"),
+}
+
+
+def derived_tables(paths: RunPaths) -> dict[str, pd.DataFrame]:
+    """Per-phase and per-crossing statistics of the derive stage, when it wrote them."""
+    out = {}
+    for key, columns in DERIVED_COLUMNS.items():
+        path = getattr(paths, key)
+        if path.is_file():
+            table = pd.read_parquet(path)
+            out[key] = table[[c for c in columns if c in table.columns]].head(40)
+    return out
 
 
 def write_comparison(target: Path, table: pd.DataFrame) -> None:
@@ -112,7 +125,7 @@ def validate_run(paths: RunPaths, model_override: ModelOverride = None, *, rrd: 
     write_comparison(paths.comparison, comparison_table(kin, sims))
     t4 = time.perf_counter()
     if rrd:
-        write_rrd(paths.rrd, paths.name, kin, sims, validation, spec.guard_rad, _phase_stats(paths))
+        write_rrd(paths.rrd, paths.name, kin, sims, validation, spec.guard_rad, derived_tables(paths))
     t5 = time.perf_counter()
     if png:
         title = (f"{paths.name}   MSE replay: theta {_short(validation, 'replay', 'theta')}, "
