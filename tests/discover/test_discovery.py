@@ -93,7 +93,6 @@ def test_effect_outside_the_catalogue_is_unexplained_not_misnamed():
     assert "theta residual has a mean" in where and "in both modes" in where
 
 
-@pytest.mark.slow
 def test_without_a_logged_command_the_delay_is_still_found(tmp_path):
     """No dir column: replay uses the derive stage's inferred command, whose motor start is fitted."""
     kin, rig, _ = rig_kinematics((_effect("loop_delay", 0.04),), seed=2, work=tmp_path,
