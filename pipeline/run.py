@@ -237,6 +237,18 @@ def _pool(jobs: int):
     return ProcessPoolExecutor(max_workers=jobs, mp_context=ctx)
 
 
+def _isolated(csv: Path, processed: Path, stamp: Stamp) -> dict:
+    from concurrent.futures.process import BrokenProcessPool
+
+    with _pool(1) as pool:
+        try:
+            return pool.submit(process_recording, csv, processed, stamp).result()
+        except BrokenProcessPool as err:
+            _withdraw(processed, previous_runs(processed, csv))
+            return {"recording": csv.name, "status": "failed", "runs": [],
+                    "error": f"the worker process died while processing it ({err})", "timing_s": {}}
+
+
 def _execute(todo: list[tuple[Path, Stamp]], processed: Path, jobs: int, show_progress: bool) -> list[dict]:
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
@@ -253,17 +265,24 @@ def _execute(todo: list[tuple[Path, Stamp]], processed: Path, jobs: int, show_pr
         from concurrent.futures import as_completed
         from concurrent.futures.process import BrokenProcessPool
 
+        broken: list[tuple[Path, Stamp]] = []
         with _pool(min(jobs, len(todo))) as pool:
-            futures = {pool.submit(process_recording, csv, processed, stamp): csv for csv, stamp in todo}
+            futures = {pool.submit(process_recording, csv, processed, stamp): (csv, stamp) for csv, stamp in todo}
             for fut in as_completed(futures):
-                csv = futures[fut]
+                csv, stamp = futures[fut]
                 try:
                     results.append(fut.result())
-                except BrokenProcessPool as err:
-                    results.append({"recording": csv.name, "status": "failed", "runs": [],
-                                    "error": f"worker process died: {err}", "timing_s": {}})
+                except BrokenProcessPool:
+                    broken.append((csv, stamp))
+                    continue
                 bar.update(task, description=csv.name)
                 bar.advance(task)
+        # A worker that dies (e.g. a crash in a native library) takes every pending recording
+        # with it: retry those one by one, each in a fresh worker, so only the culprit fails.
+        for csv, stamp in sorted(broken, key=lambda item: item[0]):
+            bar.update(task, description=f"{csv.name} (retry)")
+            results.append(_isolated(csv, processed, stamp))
+            bar.advance(task)
     return sorted(results, key=lambda r: r["recording"])
 
 
