@@ -8,7 +8,9 @@ between rad and A, and it is what BIC charges parameters against.
 
 Every catalogue effect has one parameter, so a fit is a bounded 1-D search: a
 coarse scan over the effect's physical range (geometric, since magnitudes span
-decades), then Brent's method between the best scan point's neighbours.
+decades), then Brent's method between the best scan point's neighbours.  Effects
+found in earlier rounds are not frozen: the scan predicts how they would move
+(one Gauss-Newton step), and the candidate is refitted together with them.
 """
 
 from __future__ import annotations
@@ -19,8 +21,8 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from pipeline.discover.measurement import Measurement
-from pipeline.errors import PdrError
 from pipeline.discover.residuals import residuals
+from pipeline.errors import PdrError
 from pipeline.model.effects import CATALOGUE, Effect, PlantSpec
 from pipeline.model.simulate import SimResult
 
@@ -34,8 +36,8 @@ NULL_VALUE: dict[str, float] = {
 def _scan(name: str) -> np.ndarray:
     """Coarse scan points inside the effect's BOUNDS (the null value included)."""
     lo, hi = next(iter(CATALOGUE[name].BOUNDS.values()))
-    if name == "current_sensor_offset":        # costs no simulation (see Evaluator)
-        return np.linspace(-0.6, 0.6, 121)
+    if name == "current_sensor_offset":        # costs no simulation when the run starts at rest (Evaluator)
+        return np.linspace(lo, hi, 161)
     if name == "spring_stiffness":
         return np.unique(np.concatenate([np.geomspace(0.25, 4.0, 17), [0.9, 0.95, 0.98, 1.0, 1.02, 1.05, 1.1]]))
     top = {"coulomb_friction": 5e-3, "driver_voltage_drop": 5.0, "loop_delay": 0.3, "backlash": 0.4}.get(name, hi)
@@ -118,12 +120,8 @@ class Evaluator:
 
     def nll(self, sim: SimResult, mask: np.ndarray | None = None) -> float:
         """Concentrated Gaussian negative log-likelihood over the fitted signals (on ``mask``)."""
-        total = 0.0
-        for s, r in residuals(self.meas, sim).items():
-            rm = r if mask is None else r[mask]
-            # a thousandth of the noise floor keeps the log finite on noiseless test data
-            total += 0.5 * len(rm) * np.log(np.mean(rm * rm) + 1e-3 * self.floor[s])
-        return float(total) if np.isfinite(total) else FAILED_NLL
+        res = residuals(self.meas, sim)
+        return _nll_of(self, res if mask is None else {s: r[mask] for s, r in res.items()})
 
     def mse(self, sim: SimResult, mask: np.ndarray | None = None) -> dict[str, float]:
         return {s: float(np.mean((r if mask is None else r[mask]) ** 2))
@@ -255,6 +253,7 @@ def moved_effects(effects: tuple[Effect, ...], step: np.ndarray, trust: float = 
 
 
 def _nll_of(ev: Evaluator, r: dict[str, np.ndarray]) -> float:
+    """sum_s n_s/2 log(mean(r_s^2)); a thousandth of the noise floor keeps the log finite on noiseless data."""
     total = sum(0.5 * len(x) * np.log(np.mean(x * x) + 1e-3 * ev.floor[s]) for s, x in r.items())
     return float(total) if np.isfinite(total) else FAILED_NLL
 
