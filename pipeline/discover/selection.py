@@ -15,9 +15,11 @@ The best passing candidate (largest held-out likelihood gain) is added, all
 added parameters are refitted jointly, and the round repeats (stacked effects,
 at most ``MAX_EFFECTS``).  The verdict: ``none`` when nothing was added and the
 residual is at the noise floor; ``explained`` when effects were added and what
-is left is at the noise floor; ``unexplained`` when structure remains that no
-candidate removes.  A near tie between the two best candidates is reported
-with both scores.
+is left is within ``STRUCTURE_FLOORS`` of it; ``unexplained`` when structure
+remains that no candidate removes (effects that passed every rule on the way
+are still listed: a hidden viscous friction next to an uncatalogued torque is
+named, the torque is not).  A near tie between the two best candidates is
+reported with both scores.
 """
 
 from __future__ import annotations
