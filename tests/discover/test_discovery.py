@@ -102,3 +102,13 @@ def test_without_a_logged_command_the_delay_is_still_found(tmp_path):
     assert [e.name for e in d.effects] == ["loop_delay"]
     assert abs(d.effects[0].parameters["Td"] - 0.04) < 0.006
     assert discovery_json(d, "nodir")["dir_source"] == "inferred"
+
+
+def test_a_catalogued_effect_beside_an_uncatalogued_one_is_named_and_the_rest_left_unexplained():
+    paper = default_config()
+    truth = replace(paper, model=paper.model.with_(b=paper.model.b + 3e-4))     # hidden viscous friction
+    kin, _ = constant_torque_kinematics(3e-4, seed=3, config=truth)              # ... and a torque
+    d = discover(kin, paper, "mixed")
+    assert [e.name for e in d.effects] == ["viscous_friction"]
+    assert abs(d.effects[0].parameters["b"] - 3e-4) / 3e-4 < 0.15
+    assert d.verdict == "unexplained"
