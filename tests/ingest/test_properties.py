@@ -45,7 +45,7 @@ csv_ish = st.lists(st.one_of(
 ), max_size=25).map(lambda lines: "\n".join(lines).encode())
 
 
-@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(csv_ish)
 def test_csv_like_text_raises_only_pdr_errors(data):
     result = _ingest(data)
