@@ -85,7 +85,7 @@ def split_lines(data: bytes, source: str) -> tuple[pa.Array, list[Quarantined], 
         raise IngestError("empty file: expected CSV lines of samples (t_ms,counts,adc,dir)", path=source)
     if data.startswith(BOM):
         data = data[len(BOM):]
-        notes.append("UTF-8 byte-order mark skipped")
+        notes.append("UTF-8 byte-order mark removed")
     sep = b"\n" if b"\n" in data or b"\r" not in data else b"\r"
     if sep == b"\r":
         notes.append("CR-only line endings")
