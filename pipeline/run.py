@@ -321,7 +321,7 @@ def run_pipeline(raw: Path, processed: Path, *, jobs: int = 2, force: bool = Fal
 
 def print_report(report: RunReport, processed: Path) -> None:
     """End-of-run summary: what ran, what was skipped, what failed and why, where the time went."""
-    from pipeline.validate.summary import wide_console
+    from pipeline.validate.console import wide_console
 
     console = wide_console()
     n_runs = sum(len(r["runs"]) for r in report.ran if r["status"] == "ok")

@@ -52,7 +52,7 @@ def gate(
     from rich.table import Table
 
     from pipeline.validate.gate import gate as run_gate, load_thresholds
-    from pipeline.validate.summary import wide_console
+    from pipeline.validate.console import wide_console
 
     spec = load_thresholds(thresholds)
     verdicts = run_gate(processed, spec)

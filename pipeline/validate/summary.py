@@ -12,6 +12,7 @@ from pathlib import Path
 import pandas as pd
 
 from pipeline.io.atomic import write_text
+from pipeline.validate.console import wide_console
 from pipeline.validate.gate import run_dirs
 from pipeline.validate.stage import summary_row
 
@@ -36,16 +37,6 @@ def write_summary(processed: Path) -> pd.DataFrame:
 
 def _g(v) -> str:
     return "-" if v is None or (isinstance(v, float) and v != v) else f"{v:.3g}"
-
-
-def wide_console(stderr: bool = True):
-    """A rich console that does not squeeze tables to 80 columns when writing to a file or CI log."""
-    import sys
-
-    from rich.console import Console
-
-    stream = sys.stderr if stderr else sys.stdout
-    return Console(stderr=stderr, width=None if stream.isatty() else 140)
 
 
 def render_summary(table: pd.DataFrame, console=None, limit: int = 60) -> None:
