@@ -62,7 +62,7 @@ def test_run_validates_every_recording_and_isolates_a_bad_one(recordings, tmp_pa
     # Noise floor on the clean recording, and the gate with the shipped thresholds.
     v = json.loads(run_paths(processed, "clean").validation.read_text())
     replay = v["replay"]["signals"]
-    assert replay["theta"]["mse"] < 2e-6
+    assert replay["theta"]["mse"] < 5e-6          # 100 clean recordings: median 9e-7, max 3.4e-6
     assert 0.7 * CURRENT_FLOOR_A2 < replay["current"]["mse"] < 1.4 * CURRENT_FLOOR_A2
     assert v["agreement"]["same_switches"] is True
     verdicts = {x.run: x for x in gate(processed, load_thresholds(SHIPPED_THRESHOLDS))}
