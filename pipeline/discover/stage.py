@@ -11,7 +11,7 @@ than a noisy first reading (which would persist for La/Ra = 7 s).
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -21,7 +21,7 @@ from pipeline.config import RigConfig, effects_toml_snippet
 from pipeline.discover.candidates import make, value_of
 from pipeline.discover.measurement import Measurement, measurement_from_kinematics
 from pipeline.discover.residuals import binned, describe, signatures
-from pipeline.discover.selection import Selection, select
+from pipeline.discover.selection import Selection, check_declared, select
 from pipeline.model.effects import Effect
 from pipeline.model.simulate import SimResult
 from pipeline.runs import RunPaths, load_config
@@ -44,6 +44,7 @@ class Discovery:
     tables_before: dict[str, list[dict]]      # residual RMS binned in state / aligned on events (replay)
     tables_after: dict[str, list[dict]]
     seconds: float
+    declared_too_large: list[dict] = field(default_factory=list)   # see selection.check_declared
 
     @property
     def effects(self) -> tuple[Effect, ...]:
@@ -75,6 +76,7 @@ def discover(kin: pd.DataFrame, config: RigConfig, name: str) -> Discovery:
     meas = sel.meas
     base = meas.simulate_ways(meas.spec(), sel.command_before)
     final = meas.simulate_ways(meas.spec(sel.effects), sel.command_after) if sel.effects else base
+    over = check_declared(meas, sel.floor) if sel.verdict == "unexplained" and not sel.effects else []
     sig_b = signatures(meas, base["replay"], sel.floor)
     sig_a = signatures(meas, final["replay"], sel.floor)
     return Discovery(meas=meas, selection=sel, base=base, final=final,
@@ -82,7 +84,7 @@ def discover(kin: pd.DataFrame, config: RigConfig, name: str) -> Discovery:
                      localisation_before=describe(sig_b, sel.floor), localisation_after=describe(sig_a, sel.floor),
                      tables_before=binned(meas, base["replay"], sel.floor),
                      tables_after=binned(meas, final["replay"], sel.floor),
-                     seconds=time.perf_counter() - t0)
+                     seconds=time.perf_counter() - t0, declared_too_large=over)
 
 
 def merge_effects(existing: tuple[Effect, ...], found: tuple[Effect, ...]) -> tuple[Effect, ...]:
@@ -129,6 +131,11 @@ def unexplained_text(d: Discovery) -> list[str]:
     sel = d.selection
     left = {s: round(v, 1) for s, v in sel.excess_after.items()}
     lines = [f"structure left above the noise floor (in noise variances): {left}"]
+    for o in d.declared_too_large:
+        where = "[model]" if o["name"] == "model.b" else "[effects]"
+        lines.append(f"the rig's TOML may overstate {o['name']}: its {where} {o['parameter']} = {o['declared']:.4g} "
+                     f"explains the data at {o['fitted']:.4g} (structure left {max(o['structure_left'].values()):.1f} "
+                     f"noise variances); effects only add, so this is for you to correct")
     return lines + d.localisation_after
 
 
@@ -165,6 +172,7 @@ def discovery_json(d: Discovery, recording: str) -> dict:
     }
     if d.verdict == "unexplained":
         out["unexplained"] = unexplained_text(d)
+        out["declared_too_large"] = d.declared_too_large
     if d.selection.stopped_for_time:
         out["stopped_for_time"] = ("a further round of candidates was not started: at the pace of the last "
                                    "round it would have passed the time budget")

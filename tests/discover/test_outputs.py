@@ -156,3 +156,17 @@ def test_snippet_layers_over_the_rig_like_validation(tmp_path):
     snippet.write_text("[effects]\nviscous_friction = { b = 0.0002 }\n")
     cfg = resolve_config([snippet])
     assert np.isclose(cfg.plant_spec().params.b, 7.7e-4 + 2e-4)
+
+
+def test_an_overstated_declared_effect_is_pointed_out_not_named(tmp_path):
+    """The TOML declares a loop delay the rig does not have: nothing to add (effects only add),
+    so the verdict is unexplained, and the report says which declared value fits at what."""
+    _, _, csv = rig_kinematics((), seed=5, work=tmp_path)
+    sidecar = csv.with_suffix(".toml")
+    sidecar.write_text(sidecar.read_text() + "\n[effects]\nloop_delay = { Td = 0.03 }\n")
+    res = runner.invoke(app, ["discover", str(csv), "--json", "--out", str(tmp_path / "out"), "--no-rrd"])
+    doc = json.loads(res.stdout)
+    assert doc["verdict"] == "unexplained" and doc["effects"] == []
+    over = doc["declared_too_large"]
+    assert [o["name"] for o in over] == ["loop_delay"] and over[0]["fitted"] < 0.003
+    assert any("overstate loop_delay" in line for line in doc["unexplained"])
