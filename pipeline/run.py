@@ -330,6 +330,11 @@ def print_report(report: RunReport, processed: Path) -> None:
                   f"{len(report.skipped)} unchanged and skipped, {len(report.failed)} failed"
                   + (f", {len(report.removed)} stale run(s) removed" if report.removed else "")
                   + f" in {report.wall_s:.2f} s")
+    if report.skipped:
+        shown = ", ".join(report.skipped[:8]) + (f", ... ({len(report.skipped) - 8} more)" if len(report.skipped) > 8 else "")
+        console.print(f"unchanged (raw bytes, rig TOML layers and code as stamped): {shown}")
+    if report.removed:
+        console.print(f"removed runs of recordings no longer in the raw folder: {', '.join(report.removed)}")
     if report.ran:
         secs = report.stage_seconds()
         total = sum(secs.values()) or 1.0
