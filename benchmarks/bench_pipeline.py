@@ -96,6 +96,10 @@ def main(n: int = N_RECORDINGS) -> None:
             print(f"    {k:<13} {v:7.2f} s  {100 * v / total:5.1f} %   {1000 * v / n:6.1f} ms/recording")
         overhead = 2 * report.wall_s - total
         print(f"    {'pool/idle':<13} {overhead:7.2f} s  (2 x wall - worker time: start-up, imports, waiting)")
+        cpu = report.cpu_seconds() / n
+        print(f"  CPU per recording in the workers: {1000 * cpu:.0f} ms (wall per recording per worker: "
+              f"{1000 * total / n:.0f} ms; the difference is waiting for a core). On two free cores that is "
+              f"at most {2 / cpu:.1f} recordings/s")
 
         rerun = _noop_rerun(raw, processed)
         print(f"re-run with nothing changed (the pdr command, process start included): {rerun}")

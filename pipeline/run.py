@@ -166,6 +166,7 @@ def process_recording(csv: Path, processed: Path, stamp: Stamp) -> dict:
 
     timing = {"ingest": 0.0, "derive": 0.0}
     out: dict = {"recording": csv.name, "status": "ok", "runs": [], "error": None, "timing_s": timing}
+    cpu0 = time.process_time()      # all threads of this worker: what the recording cost the machine
     old = previous_runs(processed, csv)
     stage = "ingest"
     try:
@@ -193,6 +194,7 @@ def process_recording(csv: Path, processed: Path, stamp: Stamp) -> dict:
         out.update(status="failed", error=f"{stage}: internal error {type(err).__name__}: {err}")
     if out["status"] == "failed":
         _withdraw(processed, sorted(set(old) | set(out["runs"])))
+    out["cpu_s"] = time.process_time() - cpu0
     return out
 
 
@@ -206,6 +208,10 @@ class RunReport:
     @property
     def failed(self) -> list[dict]:
         return [r for r in self.ran if r["status"] != "ok"]
+
+    def cpu_seconds(self) -> float:
+        """CPU time the recordings took in the workers (excludes pool start-up and waiting)."""
+        return sum(r.get("cpu_s", 0.0) for r in self.ran)
 
     def stage_seconds(self) -> dict[str, float]:
         total: dict[str, float] = {}
