@@ -361,24 +361,42 @@ def autocorrelation_time(r: np.ndarray, max_lag: int = 50) -> float:
     return tau
 
 
-def interval(sens: Sensitivity, v: float) -> tuple[float, float]:
-    """~95 % interval of the last effect's parameter from the joint information matrix
-    (Gauss-Newton, the other parameters free), with each signal's sample count divided by
-    its residual's autocorrelation time."""
+def intervals(sens: Sensitivity, values: list[float]) -> list[tuple[float, float]]:
+    """~95 % interval of each parameter from the joint information matrix (Gauss-Newton, the
+    others free), with each signal's sample count divided by its residual's autocorrelation time."""
     k = len(sens.jac)
     A = np.zeros((k, k))
     for s, r in sens.r0.items():
         J = np.column_stack([j[s] for j in sens.jac])
         var = float(np.mean(r ** 2)) + 1e-30
         A += J.T @ J / (var * autocorrelation_time(r))
-    try:
-        cov = np.linalg.pinv(A)
-        half = 1.96 * float(np.sqrt(max(cov[-1, -1], 0.0)))
-    except np.linalg.LinAlgError:
-        half = float("inf")
-    if not np.isfinite(half) or half == 0.0 and A[-1, -1] == 0.0:
-        half = float("inf")
-    return v - half, v + half
+    cov = np.linalg.pinv(A)
+    out = []
+    for i, v in enumerate(values):
+        half = 1.96 * float(np.sqrt(max(cov[i, i], 0.0)))
+        if not np.isfinite(half) or A[i, i] == 0.0:
+            half = float("inf")
+        out.append((v - half, v + half))
+    return out
+
+
+def interval(sens: Sensitivity, v: float) -> tuple[float, float]:
+    """The last effect's interval (the candidate's; the earlier ones are free)."""
+    return intervals(sens, [0.0] * (len(sens.jac) - 1) + [v])[-1]
+
+
+def prune(ev: Evaluator, effects: tuple[Effect, ...]) -> tuple[Effect, ...]:
+    """Backward elimination: an effect whose interval, with all the others refitted, includes
+    its "no effect" value is dropped (an early pick a later one made redundant)."""
+    while len(effects) > 1:
+        sens = sensitivity(ev, effects)
+        spans = intervals(sens, [value_of(e) for e in effects])
+        weak = [i for i, (e, (lo, hi)) in enumerate(zip(effects, spans)) if lo <= NULL_VALUE[e.name] <= hi]
+        if not weak:
+            break
+        rest = effects[:weak[0]] + effects[weak[0] + 1:]
+        effects = polish(ev, refit(ev, rest)) if len(rest) > 1 else refit(ev, rest)
+    return effects
 
 
 def fit_candidate(ev: Evaluator, base: tuple[Effect, ...], name: str,

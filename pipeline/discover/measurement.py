@@ -36,6 +36,7 @@ class Measurement:
     current: np.ndarray | None      # A, as the sensor reads it
     dir: np.ndarray                 # int8 command after each sample (logged, else inferred)
     dir_source: str                 # "logged" or "inferred"
+    samples_in_recording: int = 0   # > n when only the first MAX_SAMPLES are used
 
     @property
     def onset(self) -> int | None:
@@ -106,6 +107,10 @@ class Measurement:
 
 
 
+# Discovery fits the first MAX_SAMPLES samples of a longer recording: each candidate costs a few
+# dozen replays, and the 10 s budget holds for about this many (100 s of a 50 ms sketch).
+MAX_SAMPLES = 2000
+
 # Sample instants are replayed on this grid while fitting: micros() stamps make every step
 # different, and each distinct step costs the simulator a matrix exponential; moving an instant
 # by <= 50 us moves the angle by < w * 5e-5 ~ 1e-4 rad, a third of one encoder count's noise.
@@ -168,7 +173,8 @@ def measurement_from_kinematics(kin: pd.DataFrame, config: RigConfig, name: str)
     for col in ("t_s", "theta_rad"):
         if col not in kin.columns:
             raise PdrError(f"kinematics table lacks column '{col}', which discovery needs", path=name)
-    kin = kin.reset_index(drop=True)
+    total = len(kin)
+    kin = kin.iloc[:MAX_SAMPLES].reset_index(drop=True)
     if len(kin) < 20:
         raise PdrError(f"only {len(kin)} samples; discovery needs at least 20 to fit and hold out", path=name)
     t = _column(kin, "t_s")
@@ -191,7 +197,7 @@ def measurement_from_kinematics(kin: pd.DataFrame, config: RigConfig, name: str)
     if np.any(np.diff(t_fit) <= 0):
         t_fit = t
     return Measurement(name=name, config=config, kinematics=kin, t=t, t_fit=t_fit, theta=theta, omega=omega,
-                       current=current, dir=d, dir_source=source)
+                       current=current, dir=d, dir_source=source, samples_in_recording=total)
 
 
 def _command(kin: pd.DataFrame) -> tuple[np.ndarray | None, str]:

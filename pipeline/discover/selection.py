@@ -9,7 +9,8 @@ A candidate is added only when all of these hold (issue 6, step 3):
               without making any signal worse by more than half a noise variance;
 3. BIC:       2*delta(nll) + k*ln(n) <= ``MAX_DELTA_BIC`` on all samples;
 4. interval:  its ~95 % interval excludes the value at which it is absent;
-5. signature: the residual pattern that points at it shrinks by half (or to the noise).
+5. signature: the residual pattern that points at it shrinks by half (or to the noise,
+              or the candidate removes ``DOMINANT_SHARE`` of all the structure).
 
 The best passing candidate (largest held-out likelihood gain) is added, all
 added parameters are refitted jointly, and the round repeats (stacked effects,
@@ -30,7 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pipeline.discover.candidates import (
-    Evaluator, Fit, Scan, fit_candidate, folds_by_cycle, parameter_of, polish, refit, scan, sensitivity,
+    Evaluator, Fit, Scan, fit_candidate, folds_by_cycle, parameter_of, polish, prune, refit, scan, sensitivity,
 )
 from pipeline.discover.measurement import Measurement, ambiguous_switches, settle_switches
 from pipeline.discover.residuals import events, noise_floor, residuals
@@ -46,12 +47,13 @@ MAX_WORSENING_FLOORS = 0.5   # no signal may get worse than this on held-out dat
 MAX_DELTA_BIC = -10.0        # "strong" evidence on Kass & Raftery's scale
 SIGNATURE_SHRINK = 0.5       # the motivating pattern must at least halve ...
 SIGNATURE_NOISE = 3.0        # ... or fall to this many noise variances
+DOMINANT_SHARE = 0.8         # ... or the candidate remove this share of all held-out structure
 STRUCTURE_FLOORS = 25.0      # residual MSE above this many noise variances is structure
 AT_NOISE_FLOORS = 3.0        # after an effect, stop when every signal is within this of its noise floor
 NEAR_TIE = 2.0              # runner-up leaves at most twice the winner's held-out structure (+1 noise variance)
 MAX_EFFECTS = 3
 TIME_BUDGET_S = 8.0          # CPU s: a further round starts only if, at the last round's pace, it ends within this
-FULL_FITS = (4, 3, 3)        # per round, how many of the best-scanning candidates get the full assessment
+FULL_FITS = (8, 3, 3)        # per round, how many of the best-scanning candidates get the full assessment
 
 
 @dataclass
@@ -173,7 +175,10 @@ def assess(ev: Evaluator, meas: Measurement, effects: tuple[Effect, ...], name: 
                    and fit.heldout_nll_gain > 0,
         "bic": a.delta_bic <= MAX_DELTA_BIC,
         "interval_excludes_null": fit.excludes_null,
-        "signature_removed": sig_a <= SIGNATURE_SHRINK * sig_b or sig_a <= SIGNATURE_NOISE,
+        # a candidate that removes most of the held-out structure has shown its pattern; its
+        # local window may then hold what another, stacked effect leaves behind
+        "signature_removed": (sig_a <= SIGNATURE_SHRINK * sig_b or sig_a <= SIGNATURE_NOISE
+                              or share >= DOMINANT_SHARE),
     }
     return a
 
@@ -208,6 +213,7 @@ class Selection:
     command_before: np.ndarray            # the command replayed for the base model ...
     command_after: np.ndarray             # ... and the final one (differ only in an inferred motor start)
     stopped_for_time: bool                # a further round was not started (TIME_BUDGET_S)
+    pruned: list[str]                     # accepted in a round, dropped once later effects made them redundant
     meas: Measurement                     # the measurement fitted (inferred switches settled)
 
 
@@ -266,6 +272,9 @@ def select(meas: Measurement, names: tuple[str, ...] | None = None) -> Selection
                         "runner_up_accepted": bool(runner.accepted)}
         effects = polish(ev, refit(ev, best.fit.effects)) if len(best.fit.effects) > 1 else best.fit.effects
         last_round = time.process_time() - round_start
+    kept = prune(ev, effects)
+    pruned = [e.name for e in effects if e.name not in {k.name for k in kept}]
+    effects = kept
     ex_before = excess(ev, ())
     ex_after = excess(ev, effects)
     structured = max(ex_after.values()) > STRUCTURE_FLOORS
@@ -276,7 +285,8 @@ def select(meas: Measurement, names: tuple[str, ...] | None = None) -> Selection
     return Selection(effects=effects, verdict=verdict, rounds=rounds, floor=floor, excess_before=ex_before,
                      excess_after=ex_after, near_tie=near_tie, simulations=ev.simulations,
                      failures=ev.failures, command_before=ev.command_for(()),
-                     command_after=ev.command_for(effects), meas=meas, stopped_for_time=stopped_for_time)
+                     command_after=ev.command_for(effects), meas=meas, stopped_for_time=stopped_for_time,
+                     pruned=pruned)
 
 
 def check_declared(meas: Measurement, floor: dict[str, float]) -> list[dict]:

@@ -167,12 +167,17 @@ def discovery_json(d: Discovery, recording: str) -> dict:
                                 "unit": "residual RMS in noise standard deviations (1 = at the noise floor)"},
         "effects_toml": effects_toml_snippet(augmented_effects(d)) if d.effects else "",
         "dir_source": d.meas.dir_source,
+        "samples": {"used": d.meas.n, "in_recording": d.meas.samples_in_recording},
         "motor_start_shift_samples": _onset_shift(d),
         "simulations": sel.simulations,
     }
     if d.verdict == "unexplained":
         out["unexplained"] = unexplained_text(d)
         out["declared_too_large"] = d.declared_too_large
+    if d.selection.pruned:
+        out["pruned"] = {"effects": d.selection.pruned,
+                         "why": "accepted in an earlier round; with the later effects refitted its interval "
+                                "includes 'no effect', so it was dropped"}
     if d.selection.stopped_for_time:
         out["stopped_for_time"] = ("a further round of candidates was not started: at the pace of the last "
                                    "round it would have passed the time budget")
