@@ -119,3 +119,18 @@ def test_run_command_exit_status_and_missing_raw_folder(tmp_path):
                          capture_output=True, text=True)
     assert out.returncode == 2
     assert "nope: raw folder not found" in out.stderr
+
+
+@pytest.mark.slow
+def test_without_logged_dir_replay_uses_the_inferred_phases(tmp_path):
+    from pipeline.rig.serial import Artefacts
+
+    raw = tmp_path / "raw"
+    setup = RigSetup(artefacts=Artefacts(dir_column=False, garbled=3, crlf=True))
+    write_recording(make_recording(setup, seed=13), raw, "nodir")
+    report = run_pipeline(raw, tmp_path / "processed", jobs=1, code=CODE)
+    assert [r["status"] for r in report.ran] == ["ok"]
+    v = json.loads(run_paths(tmp_path / "processed", "nodir").validation.read_text())
+    assert v["dir_inferred"] is True
+    assert v["replay"]["signals"]["theta"]["mse"] < 5e-6           # at the noise floor
+    assert v["replay"]["switches"]["n_measured"] >= 10
