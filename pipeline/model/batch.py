@@ -179,51 +179,87 @@ def _general(plan, steps, X, dirs, A, B, R, guard, V, Td) -> np.ndarray:
     s - t_q) and ``du`` to the motor voltage held from step q + 1 on.  Both are
     booked when the change is decided, so each step stays one einsum plus one
     add, and the batched exponentials are only taken for the sets that changed.
+    Once the controller runs (closed loop), a change is exactly a reversal, so
+    the sets concerned come straight from the guard test.
     """
     t = plan.t
     n, m = len(dirs), len(R)
-    gamma = _GammaOfLength(A, B)
     slab = np.empty((n, 4, m))                     # [I, w, delta, motor voltage at the step's start]
     slab[0, :3] = X
-    extra = np.zeros((n, m, 3))                    # Gamma(h - a) du of changes arriving inside step k
-    du_from = np.zeros((n + 1, m))                 # motor voltage changes taking effect from step k on
+    book = _Booking(t, Td, _GammaOfLength(A, B), n, m)
     d = np.zeros(m, dtype=np.int64)
     u_cmd = np.zeros(m)
-    u_start = np.zeros(m)
+    own_from = plan.start + 1 if plan.closed_loop else n
     for k in range(n):
         x = slab[k]
-        d = _decide(plan, k, d, x[2] / R, guard)
+        if k >= own_from:                          # next_dir once started: d is +-1, a flip is a change
+            flip = np.flatnonzero(d * (x[2] / R) >= guard)
+            if len(flip):
+                d[flip] = -d[flip]
+                book(k, flip, (2.0 * d[flip]) * V[flip])
+        else:
+            d = _decide(plan, k, d, x[2] / R, guard)
+            new = d * V
+            changed = np.flatnonzero(new != u_cmd) if k else np.arange(m)
+            if len(changed):
+                book(k, changed, new[changed] - u_cmd[changed])
+                u_cmd = new
         dirs[k] = d
-        new = d * V
-        changed = np.flatnonzero(new != u_cmd) if k else np.arange(m)
-        if len(changed):
-            _book(changed, t[k] + Td[changed], new[changed] - u_cmd[changed], t, gamma, extra, du_from)
-            u_cmd = new
-        u_start = u_start + du_from[k]
-        x[3] = u_start
+        if k:
+            np.add(slab[k - 1, 3], book.voltage_change(k), out=x[3])
+        else:
+            x[3] = book.voltage_change(0)
         if k + 1 == n:
             break
-        np.einsum("ijm,jm->im", steps[k][3], x, out=slab[k + 1, :3])
-        slab[k + 1, :3] += extra[k].T
+        nxt = slab[k + 1, :3]
+        np.einsum("ijm,jm->im", steps[k][3], x, out=nxt)
+        book.add_extra(k, nxt)
     return slab
 
 
-def _book(sets, arrive, du, t, gamma, extra, du_from) -> None:
-    """Book motor-voltage changes ``du`` reaching ``sets`` at instants ``arrive`` (see ``_general``).
+class _Booking:
+    """Motor-voltage changes ``du`` of ``sets`` decided at sample k, booked into the steps they land in.
 
     A change landing within TIME_EPS of a sample belongs to the step that sample
     starts (as in ``simulate``); one landing in step q contributes
-    Gamma(t_{q+1} - arrive) du there and du to the voltage held from q + 1 on.
+    Gamma(t_{q+1} - arrive) du there (``extra``, laid out like the state rows)
+    and du to the voltage held from q + 1 on (``du_from``).  A change lands at
+    most ``ahead`` steps after the sample that decided it, so both live in ring
+    buffers of that depth (small enough to stay in cache): ``take(k)`` hands
+    out step k's row and clears it for reuse.
     """
-    n = len(t)
-    q = np.searchsorted(t, arrive + TIME_EPS, side="right") - 1    # the step the change lands in
-    if q.max() >= n - 1:
-        keep = q < n - 1
-        sets, arrive, du, q = sets[keep], arrive[keep], du[keep], q[keep]
-    # each set appears once per call, so plain fancy-index += is safe (no repeated (step, set) pairs)
-    G = gamma(sets, t[q + 1] - np.maximum(arrive, t[q]))
-    extra[q, sets] += G * du[:, None]
-    du_from[q + 1, sets] += du
+
+    def __init__(self, t: np.ndarray, Td: np.ndarray, gamma: "_GammaOfLength", n: int, m: int) -> None:
+        self.t, self.Td, self.gamma, self.last = t, Td, gamma, n - 1
+        reach = np.searchsorted(t, t + float(np.max(Td)) + TIME_EPS, side="right") - 1
+        self.depth = int(np.max(reach - np.arange(n))) + 2
+        self.extra = np.zeros((self.depth, 3, m))
+        self.du_from = np.zeros((self.depth, m))
+
+    def __call__(self, k: int, sets: np.ndarray, du: np.ndarray) -> None:
+        t = self.t
+        arrive = t[k] + self.Td[sets]
+        q = np.searchsorted(t, arrive + TIME_EPS, side="right") - 1     # the step the change lands in
+        if q.max() >= self.last:
+            keep = q < self.last
+            sets, arrive, du, q = sets[keep], arrive[keep], du[keep], q[keep]
+        # each set appears once per call, so plain fancy-index += is safe (no repeated (step, set) pairs)
+        G = self.gamma(sets, t[q + 1] - np.maximum(arrive, t[q]))
+        self.extra[q % self.depth, :, sets] += G * du[:, None]
+        self.du_from[(q + 1) % self.depth, sets] += du
+
+    def voltage_change(self, k: int) -> np.ndarray:
+        """du taking effect from step k on (read once per step, then cleared)."""
+        row = self.du_from[k % self.depth]
+        out = row.copy()
+        row[:] = 0.0
+        return out
+
+    def add_extra(self, k: int, x: np.ndarray) -> None:
+        """x += the booked Gamma(h - a) du of step k (then cleared)."""
+        row = self.extra[k % self.depth]
+        x += row
+        row[:] = 0.0
 
 
 class _GammaOfLength:
