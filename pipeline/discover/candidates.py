@@ -412,7 +412,7 @@ def fit_candidate(ev: Evaluator, base: tuple[Effect, ...], name: str,
     if nll_all > at_grid:
         value, nll_all = float(sc.grid[i]), at_grid
     if base:
-        effects = refit(ev, (*moved, make(name, value)))
+        effects = polish(ev, refit(ev, (*moved, make(name, value))))
         moved, value = effects[:-1], value_of(effects[-1])
         nll_all = ev.nll(ev.sim(effects))
     effects = (*moved, make(name, value))

@@ -6,7 +6,7 @@ A candidate is added only when all of these hold (issue 6, step 3):
               variances of mean squared error from some signal;
 2. held out:  fitted on half the cycles, it removes at least ``MIN_HELDOUT_SHARE``
               of the structure (MSE above the noise floor) on the other half,
-              without making any signal worse by more than half a noise variance;
+              without making any signal worse by more than ``MAX_WORSENING_FLOORS``;
 3. BIC:       2*delta(nll) + k*ln(n) <= ``MAX_DELTA_BIC`` on all samples;
 4. interval:  its ~95 % interval excludes the value at which it is absent;
 5. signature: the residual pattern that points at it shrinks by half (or to the noise,
@@ -43,7 +43,7 @@ from pipeline.model.effects import CATALOGUE, Effect
 # integration is never that exact), so an angle gain must be a whole noise variance.
 MIN_GAIN_FLOORS = {"theta": 1.0, "current": 0.25}
 MIN_HELDOUT_SHARE = 0.5      # share of held-out structure removed
-MAX_WORSENING_FLOORS = 0.5   # no signal may get worse than this on held-out data
+MAX_WORSENING_FLOORS = 2.0   # no signal may get worse than this on held-out data (a stacked partner may cost a little)
 MAX_DELTA_BIC = -10.0        # "strong" evidence on Kass & Raftery's scale
 SIGNATURE_SHRINK = 0.5       # the motivating pattern must at least halve ...
 SIGNATURE_NOISE = 3.0        # ... or fall to this many noise variances
