@@ -42,7 +42,9 @@ MAGNITUDES: dict[str, tuple[float, float]] = {
 }
 NOISE_V = {"adc-step": 5.0 / 1024, "3x": 15.0 / 1024}     # sigma of the current sensor + ADC noise
 PAIRS = (("viscous_friction", "current_sensor_offset"), ("coulomb_friction", "loop_delay"),
-         ("spring_stiffness", "backlash"), ("driver_voltage_drop", "rack_inertia"))
+         ("spring_stiffness", "backlash"), ("driver_voltage_drop", "rack_inertia"),
+         ("driver_voltage_drop", "spring_stiffness"), ("rack_inertia", "spring_stiffness"),
+         ("backlash", "loop_delay"))
 TORQUES = (8e-4, 2e-3)        # N m, out of the catalogue
 CURRENT_EFFECTS = {"current_sensor_offset"}
 _NUMBER = itertools.count()
