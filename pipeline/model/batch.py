@@ -190,13 +190,15 @@ def _general(plan, steps, X, dirs, A, B, R, guard, V, Td) -> np.ndarray:
     d = np.zeros(m, dtype=np.int64)
     u_cmd = np.zeros(m)
     own_from = plan.start + 1 if plan.closed_loop else n
+    V2 = 2.0 * V
     for k in range(n):
         x = slab[k]
         if k >= own_from:                          # next_dir once started: d is +-1, a flip is a change
             flip = np.flatnonzero(d * (x[2] / R) >= guard)
             if len(flip):
-                d[flip] = -d[flip]
-                book(k, flip, (2.0 * d[flip]) * V[flip])
+                now = -d[flip]
+                d[flip] = now
+                book(k, flip, now * V2[flip])      # u: -now V -> now V
         else:
             d = _decide(plan, k, d, x[2] / R, guard)
             new = d * V
@@ -205,10 +207,7 @@ def _general(plan, steps, X, dirs, A, B, R, guard, V, Td) -> np.ndarray:
                 book(k, changed, new[changed] - u_cmd[changed])
                 u_cmd = new
         dirs[k] = d
-        if k:
-            np.add(slab[k - 1, 3], book.voltage_change(k), out=x[3])
-        else:
-            x[3] = book.voltage_change(0)
+        book.hold_voltage(k, slab[k - 1, 3] if k else 0.0, x[3])
         if k + 1 == n:
             break
         nxt = slab[k + 1, :3]
@@ -248,18 +247,17 @@ class _Booking:
         self.extra[q % self.depth, :, sets] += G * du[:, None]
         self.du_from[(q + 1) % self.depth, sets] += du
 
-    def voltage_change(self, k: int) -> np.ndarray:
-        """du taking effect from step k on (read once per step, then cleared)."""
+    def hold_voltage(self, k: int, before: np.ndarray | float, out: np.ndarray) -> None:
+        """out = motor voltage held over step k: ``before`` plus the du taking effect from k on (then cleared)."""
         row = self.du_from[k % self.depth]
-        out = row.copy()
-        row[:] = 0.0
-        return out
+        np.add(before, row, out=out)
+        row.fill(0.0)
 
     def add_extra(self, k: int, x: np.ndarray) -> None:
         """x += the booked Gamma(h - a) du of step k (then cleared)."""
         row = self.extra[k % self.depth]
         x += row
-        row[:] = 0.0
+        row.fill(0.0)
 
 
 class _GammaOfLength:
