@@ -106,7 +106,7 @@ def to_signals(values: dict[str, np.ndarray], line: np.ndarray, t_s: np.ndarray,
                  "current_a": (volts - zero.zero_v) / cs.sensitivity_v_per_a}
     if "dir" in values:
         d = values["dir"].astype(np.int8)
-        cols |= {"dir": d, "mode": np.array([2, 0, 1], dtype=np.int8)[d + 1]}     # dir -1, 0, 1 -> mode 2, 0, 1
+        cols |= {"dir": d, "mode": d + np.int8(3) * (d < 0)}     # dir -1, 0, 1 -> mode 2, 0, 1
     return pd.DataFrame(cols, copy=False)
 
 
@@ -116,4 +116,5 @@ def seconds_from_start(t_unwrapped: np.ndarray, unit: str) -> np.ndarray:
 
 def saturation(adc: np.ndarray, steps: int) -> dict:
     """Samples pinned at either end of the ADC range (current beyond what the ADC can show)."""
-    return {"low": int((adc == 0).sum()), "high": int((adc == steps - 1).sum()), "samples": int(len(adc))}
+    return {"low": int(np.count_nonzero(adc == 0)), "high": int(np.count_nonzero(adc == steps - 1)),
+            "samples": int(len(adc))}

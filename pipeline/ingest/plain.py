@@ -71,7 +71,8 @@ def parse_plain(data: bytes, columns: ColumnsConfig, source: str) -> ParsedFile 
         return None
     values = {wanted[k][0]: table.column(k).to_numpy() for k in wanted}
     n = table.num_rows
-    if n == 0 or np.any(np.diff(values["t_raw"]) < 0):
+    t = values["t_raw"]
+    if n == 0 or (t[1:] < t[:-1]).any():
         return None
     first_line = 2 if header else 1
     seg = Segment(index=0, header_line=1 if header else None, layout=layout, width=width, data_lines=n,

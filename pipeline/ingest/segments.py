@@ -33,7 +33,8 @@ def _order_time(seg: Segment, cfg: RigConfig) -> tuple[np.ndarray, int, int | No
     """Range rules, lone out-of-order samples; the unwrapped time, wraps, and the first backward row."""
     bad, reason = range_violations(seg.values, cfg)
     _quarantine(seg, bad, lambda i: reason[int(i)])
-    if not (np.diff(seg.values["t_raw"]) < 0).any():        # the common case: nothing to undo
+    t_raw = seg.values["t_raw"]
+    if not (t_raw[1:] < t_raw[:-1]).any():                  # the common case: nothing to undo
         return seg.values["t_raw"], 0, None
     t, wraps = unwrap(seg.values["t_raw"], cfg.columns.time_unit)
     lone = lone_out_of_order(t)
@@ -52,9 +53,10 @@ def restart_points(t: np.ndarray, counts: np.ndarray, unit: str) -> np.ndarray:
     if len(t) < 3:
         return np.zeros(0, dtype=np.int64)
     scale, span = UNIT_S[unit], COUNTER_RANGE[unit]
-    low = t[1:] * scale < RESTART_WITHIN_S
-    wrap = (t[:-1] > span - RESTART_WITHIN_S / scale) if span else np.zeros(len(t) - 1, dtype=bool)
-    k = np.flatnonzero((np.diff(t) < 0) & low & ~wrap & (counts[1:] == 0)) + 1
+    k = np.flatnonzero(t[1:] < t[:-1]) + 1              # backward steps only (none in most captures)
+    low = t[k] * scale < RESTART_WITHIN_S
+    wrap = (t[k - 1] > span - RESTART_WITHIN_S / scale) if span else np.zeros(len(k), dtype=bool)
+    k = k[low & ~wrap & (counts[k] == 0)]
     k = k[k + 1 < len(t)]
     return k[(t[k + 1] >= t[k]) & (t[k + 1] < t[k - 1])]
 

@@ -69,8 +69,25 @@ def _current_zeros(parsed: ParsedFile, flagged: dict[int, str], cfg: RigConfig, 
     return zeros, refusals
 
 
-def ingest_capture(data: bytes, cfg: RigConfig, source: str, stem: str) -> tuple[list[RunData], dict]:
-    """Bytes of one capture -> the signals table and report of each kept segment, and the file report."""
+@dataclass
+class Capture:
+    """A capture parsed, cleaned and made into signals tables: everything but the report's figures."""
+
+    data: bytes
+    cfg: RigConfig
+    source: str
+    parsed: ParsedFile
+    times: list[tuple]                     # per segment: unwrapped time, counter wraps
+    quarantined: list[Quarantined]
+    flagged: dict[int, str]                # segment index -> why it is not a run
+    zeros: dict[int, ZeroEstimate]
+    names: dict[int, str]                  # segment index -> run name
+    runs: list[RunData]
+
+
+def read_capture(data: bytes, cfg: RigConfig, source: str, stem: str) -> Capture:
+    """Bytes of one capture -> the signals table of each kept segment; every refusal is raised here,
+    so once this returns the tables can be written while the report is put together."""
     parsed = parse_plain(data, cfg.columns, source) or parse_capture(data, cfg.columns, source)
     parsed.segments = [part for seg in parsed.segments for part in split_restarts(seg, cfg.columns.time_unit)]
     for k, seg in enumerate(parsed.segments):
@@ -88,25 +105,31 @@ def ingest_capture(data: bytes, cfg: RigConfig, source: str, stem: str) -> tuple
     flagged |= refusals
     keep = [s for s in parsed.segments if s.index not in flagged]
     names = {s.index: stem if len(keep) == 1 else f"{stem}-seg{k + 1}" for k, s in enumerate(keep)}
-    runs, seg_reports = [], []
-    for seg, (t, wraps) in zip(parsed.segments, times):
+    runs = [RunData(names[seg.index], to_signals(seg.values, seg.line, seconds_from_start(t, cfg.columns.time_unit),
+                                                 seg.index, cfg, zeros.get(seg.index)), {})
+            for seg, (t, _) in zip(parsed.segments, times) if seg.index in names]
+    return Capture(data, cfg, source, parsed, times, quarantined, flagged, zeros, names, runs)
+
+
+def capture_report(cap: Capture) -> dict:
+    """The file report (timing, zeros, defects, quarantine, sha256); sets each run's own report too."""
+    parsed, cfg, names, zeros = cap.parsed, cap.cfg, cap.names, cap.zeros
+    seg_reports = []
+    for seg, (t, wraps) in zip(parsed.segments, cap.times):
         entry = {"index": seg.index, "header_line": seg.header_line, "rows_kept": int(len(seg.line)),
                  "rows_quarantined": len(seg.quarantined), "columns": sorted(seg.layout),
                  "notes": seg.notes, "run": names.get(seg.index)}
         if seg.index not in names:
-            entry["flagged"] = flagged[seg.index]
+            entry["flagged"] = cap.flagged[seg.index]
             seg_reports.append(entry)
             continue
-        t_s = seconds_from_start(t, cfg.columns.time_unit)
         zero = zeros.get(seg.index)
-        df = to_signals(seg.values, seg.line, t_s, seg.index, cfg, zero)
         entry |= {"first_line": int(seg.line[0]), "last_line": int(seg.line[-1]), "counter_wraps": wraps,
                   "timing": timing_stats(t, cfg.columns.time_unit, seg.line, cfg.controller.period_s),
                   "current_zero": zero.to_dict() if zero else None,
                   "adc_saturation": saturation(seg.values["adc"], cfg.current_sensor.adc_steps) if zero else None,
                   "not_logged": [c for c in ("adc", "dir") if c not in seg.layout]}
         seg_reports.append(entry)
-        runs.append(RunData(names[seg.index], df, {}))
     defects = list(parsed.notes)
     for entry in seg_reports:
         defects += [f"segment {entry['index']}: {n}" for n in entry["notes"]]
@@ -114,26 +137,33 @@ def ingest_capture(data: bytes, cfg: RigConfig, source: str, stem: str) -> tuple
     if len(parsed.header_lines) > 1:
         defects.append(f"{len(parsed.header_lines) - 1} board reset(s): repeated header at lines "
                        f"{parsed.header_lines[1:]}")
+    kept_rows = sum(len(s.line) for s in parsed.segments)
     report = {
-        "recording": source,
-        "sha256": hashlib.sha256(data).hexdigest(),
-        "bytes": len(data),
+        "recording": cap.source,
+        "sha256": hashlib.sha256(cap.data).hexdigest(),
+        "bytes": len(cap.data),
         "config": cfg.to_dict(),
         "sources": cfg.sources,
         "lines": {"total": parsed.lines_total, "blank": parsed.blank_lines, "comment": parsed.comment_lines,
                   "header": parsed.header_lines},
-        "rows": {"read": kept_rows + len(quarantined), "kept": sum(len(r.signals) for r in runs),
-                 "quarantined": len(quarantined)},
-        "quarantined": [q.to_dict() for q in quarantined],
+        "rows": {"read": kept_rows + len(cap.quarantined), "kept": sum(len(r.signals) for r in cap.runs),
+                 "quarantined": len(cap.quarantined)},
+        "quarantined": [q.to_dict() for q in cap.quarantined],
         "board_resets": len(parsed.segments) - 1 - (1 if parsed.segments[0].header_line is None
                                                     and parsed.header_lines else 0),
         "defects": defects,
         "segments": seg_reports,
-        "runs": [r.name for r in runs],
+        "runs": [r.name for r in cap.runs],
     }
-    for r in runs:
+    for r in cap.runs:
         r.report = report | {"run": r.name}
-    return runs, report
+    return report
+
+
+def ingest_capture(data: bytes, cfg: RigConfig, source: str, stem: str) -> tuple[list[RunData], dict]:
+    """Bytes of one capture -> the signals table and report of each kept segment, and the file report."""
+    cap = read_capture(data, cfg, source, stem)
+    return cap.runs, capture_report(cap)
 
 
 def summary_text(report: dict) -> str:
@@ -154,6 +184,27 @@ def summary_text(report: dict) -> str:
     return "\n".join(lines)
 
 
+def ingest_signals(data: bytes, cfg: RigConfig, source: str, stem: str, processed: Path
+                   ) -> tuple[list[RunData], dict, list[RunPaths]]:
+    """``ingest_capture`` with each run's signals.parquet written as soon as its table exists.
+
+    The Parquet encoding runs in a worker thread while this one puts the report together (timing
+    statistics, sha256): both release the GIL, so on two cores the report costs no wall time.
+    Every refusal is raised by ``read_capture``, before anything is written.
+    """
+    from concurrent.futures import ThreadPoolExecutor
+
+    from pipeline.ingest.write import write_signals
+    cap = read_capture(data, cfg, source, stem)
+    out = [run_paths(processed, run.name) for run in cap.runs]
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        pending = [pool.submit(write_signals, paths, run.signals) for paths, run in zip(out, cap.runs)]
+        report = capture_report(cap)
+        for job in pending:
+            job.result()
+    return cap.runs, report, out
+
+
 def ingest_recording(csv_path: Path, processed: Path, *, config: RigConfig | None = None) -> IngestResult:
     """Read one raw CSV (never modified), resolve its rig TOML layers, write one run per kept segment."""
     from pipeline.ingest.write import write_run
@@ -163,10 +214,7 @@ def ingest_recording(csv_path: Path, processed: Path, *, config: RigConfig | Non
         data = csv_path.read_bytes()
     except OSError as err:
         raise IngestError(f"cannot read the recording: {err.strerror}", path=csv_path) from None
-    runs, report = ingest_capture(data, cfg, str(csv_path), csv_path.stem)
-    out = []
-    for run in runs:
-        paths = run_paths(Path(processed), run.name)
+    runs, report, out = ingest_signals(data, cfg, str(csv_path), csv_path.stem, Path(processed))
+    for run, paths in zip(runs, out):
         write_run(paths, run.signals, run.report, cfg)
-        out.append(paths)
     return IngestResult(runs=out, report=report, tables={r.name: r.signals for r in runs})

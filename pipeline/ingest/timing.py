@@ -56,8 +56,11 @@ def timing_stats(t: np.ndarray, unit: str, line: np.ndarray, period_s: float) ->
     millis give exact periods (no 1e-15 s jitter from rounding).
     """
     dt = np.diff(t) * UNIT_S[unit]
-    t_s = (t - t[0]) * UNIT_S[unit] if len(t) else t
-    out: dict = {"samples": int(len(t_s)), "duration_s": float(t_s[-1] - t_s[0]) if len(t_s) else 0.0,
+
+    def t_s(i: int) -> float:           # seconds since the first sample, only where the report needs it
+        return float((t[i] - t[0]) * UNIT_S[unit])
+
+    out: dict = {"samples": int(len(t)), "duration_s": t_s(-1) - t_s(0) if len(t) else 0.0,
                  "nominal_period_s": period_s}
     if not len(dt):
         return out | {"median_period_s": None, "defects": ["a single sample: no timing"]}
@@ -67,7 +70,7 @@ def timing_stats(t: np.ndarray, unit: str, line: np.ndarray, period_s: float) ->
     p05, med, p95 = float(part[kth[0]]), float(part[kth[1]] + part[kth[2]]) / 2, float(part[kth[3]])
     defects = []
     gaps = dt > GAP_FACTOR * med if med > 0 else np.zeros(len(dt), dtype=bool)
-    repeated = int((dt == 0).sum())
+    repeated = int(np.count_nonzero(dt == 0))
     out |= {
         "median_period_s": med,
         "jitter_std_s": float(np.std(dt)),
@@ -75,8 +78,8 @@ def timing_stats(t: np.ndarray, unit: str, line: np.ndarray, period_s: float) ->
         "period_p95_s": p95,
         "min_period_s": float(dt.min()),
         "max_period_s": float(dt.max()),
-        "gaps": int(gaps.sum()),
-        "gap_list": [{"line": int(line[i + 1]), "t_s": float(t_s[i + 1]), "step_s": float(dt[i])}
+        "gaps": int(np.count_nonzero(gaps)),
+        "gap_list": [{"line": int(line[i + 1]), "t_s": t_s(i + 1), "step_s": float(dt[i])}
                      for i in np.flatnonzero(gaps)[:LISTED]],
         "repeated_timestamps": repeated,
     }
