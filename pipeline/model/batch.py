@@ -92,20 +92,16 @@ def _run_linear_batch(specs: list[PlantSpec], plan, x0: np.ndarray) -> BatchResu
     m = len(specs)
     t = plan.t
     n = len(t)
-    AB = [s.params.state_matrices() for s in specs]
-    A = np.stack([a for a, _ in AB])
-    B = np.stack([b for _, b in AB])
+    A, B = stacked_state_matrices([s.params for s in specs])
     R = np.array([s.params.R for s in specs])
     guard = np.array([s.guard_rad for s in specs])
     V = np.array([s.v_drive for s in specs])
     Td = np.array([s.Td for s in specs])
     I0 = np.array([s.I0 for s in specs])
     delayed = bool(np.any(Td > 0.0))
-    cache: dict[float, tuple[np.ndarray, ...]] = {}
-
     X = np.tile(x0[:, None], (1, m))              # (3, m): I, w, delta of every set
     dirs = np.zeros((n, m), dtype=np.int8)
-    steps = [_entry(cache, A, B, h) for h in np.diff(t).tolist()]
+    steps = _step_matrices(A, B, np.diff(t).tolist())
     if plan.closed_loop and not delayed:
         out = _closed_loop_undelayed(plan, steps, X, dirs, R, guard, V)
     else:
@@ -114,20 +110,37 @@ def _run_linear_batch(specs: list[PlantSpec], plan, x0: np.ndarray) -> BatchResu
                        delta=out[:, 2, :].T, dir=dirs.T, v_drive=V, I0=I0)
 
 
-def _entry(cache: dict, A: np.ndarray, B: np.ndarray, h: float) -> tuple[np.ndarray, ...]:
-    """Per step length: Phi as (3, 3, m), Gamma as (3, m) and (m, 3), and [Phi | Gamma] as (3, 4, m)."""
-    entry = cache.get(h)
-    if entry is None:
-        key = step_key(h)
-        entry = cache.get(key)
-        if entry is None:
-            Phi, Gam = augmented_batch(A, B, key)
-            Phi_t = np.ascontiguousarray(Phi.transpose(1, 2, 0))
-            aug = np.ascontiguousarray(np.concatenate([Phi_t, Gam.T[:, None, :]], axis=1))   # (3, 4, m): [Phi | Gamma]
-            entry = (Phi_t, np.ascontiguousarray(Gam.T), Gam, aug)
-            cache[key] = entry
-        cache[h] = entry
-    return entry
+def stacked_state_matrices(params: list) -> tuple[np.ndarray, np.ndarray]:
+    """``ModelParams.state_matrices`` for many sets at once: A (m, 3, 3), B (m, 3) (eqs. 2, 4/8, 5).
+
+    Built from parameter columns in a handful of array operations; a thousand
+    separate 3x3 constructions cost more than the simulation they feed.
+    """
+    col = {name: np.array([getattr(p, name) for p in params], dtype=float)
+           for name in ("R", "J", "Ke", "Kt", "La", "Ra", "K1", "K2", "b")}
+    m = len(params)
+    A = np.zeros((m, 3, 3))
+    A[:, 0, 0] = -col["Ra"] / col["La"]                                   # (2)
+    A[:, 0, 1] = -col["Ke"] / col["La"]
+    A[:, 1, 0] = col["Kt"] / col["J"]                                     # (4), (8)
+    A[:, 1, 1] = -col["b"] / col["J"]
+    A[:, 1, 2] = -col["R"] * (col["K1"] + col["K2"]) / col["J"]
+    A[:, 2, 1] = col["R"]                                                 # (5)
+    B = np.zeros((m, 3))
+    B[:, 0] = 1.0 / col["La"]
+    return A, B
+
+
+def _step_matrices(A: np.ndarray, B: np.ndarray, hs: list[float]) -> list[np.ndarray]:
+    """[Phi | Gamma] as (3, 4, m) for every step: one batched exponential over all distinct lengths."""
+    keys = {h: step_key(h) for h in set(hs)}
+    lengths = sorted(set(keys.values()))
+    m = A.shape[0]
+    L = len(lengths)
+    Phi, Gam = augmented_batch(np.tile(A, (L, 1, 1)), np.tile(B, (L, 1)), np.repeat(lengths, m))
+    aug = np.concatenate([Phi, Gam[:, :, None]], axis=2).reshape(L, m, 3, 4)
+    by_length = {h: np.ascontiguousarray(aug[i].transpose(1, 2, 0)) for i, h in enumerate(lengths)}
+    return [by_length[keys[h]] for h in hs]
 
 
 def _decide(plan, k: int, d: np.ndarray, theta: np.ndarray, guard: np.ndarray) -> np.ndarray:
@@ -167,7 +180,7 @@ def _closed_loop_undelayed(plan, steps, X, dirs, R, guard, V) -> np.ndarray:
         dirs[k] = d
         if k + 1 == n:
             break
-        np.einsum("ijm,jm->im", steps[k][3], x, out=slab[k + 1, :3])
+        np.einsum("ijm,jm->im", steps[k], x, out=slab[k + 1, :3])
     return slab
 
 
@@ -211,7 +224,7 @@ def _general(plan, steps, X, dirs, A, B, R, guard, V, Td) -> np.ndarray:
         if k + 1 == n:
             break
         nxt = slab[k + 1, :3]
-        np.einsum("ijm,jm->im", steps[k][3], x, out=nxt)
+        np.einsum("ijm,jm->im", steps[k], x, out=nxt)
         book.add_extra(k, nxt)
     return slab
 
