@@ -330,19 +330,26 @@ def refit(ev: Evaluator, effects: tuple[Effect, ...], width: float = 0.2) -> tup
     return tuple(current)
 
 
-def polish(ev: Evaluator, effects: tuple[Effect, ...], steps: int = 4) -> tuple[Effect, ...]:
-    """Joint Gauss-Newton steps over all parameters, each kept only if the likelihood improves:
-    confusable pairs (a softer spring and a backlash) trade off along a valley that one
-    parameter at a time crosses only slowly."""
+def polish(ev: Evaluator, effects: tuple[Effect, ...], steps: int = 12) -> tuple[Effect, ...]:
+    """Joint Gauss-Newton steps over all parameters with backtracking (full, half, quarter step),
+    each kept only if the likelihood improves: confusable pairs (a softer spring and a backlash,
+    an inertia and a stiffer spring) trade off along a long curved valley that one parameter at
+    a time crosses only slowly."""
     best, best_nll = effects, ev.nll(ev.sim(effects))
     for _ in range(steps):
         sens = sensitivity(ev, best)
         step, _ = gauss_newton(sens.r0, sens.jac)
-        trial = moved_effects(best, step, trust=0.3)
-        nll = ev.nll(ev.sim(trial))
-        if not nll < best_nll - 1e-6:
+        for scale in (1.0, 0.5, 0.25):
+            trial = moved_effects(best, step * scale, trust=0.5)
+            nll = ev.nll(ev.sim(trial))
+            if nll < best_nll - 1e-6:
+                break
+        else:
             break
+        improvement = best_nll - nll
         best, best_nll = trial, nll
+        if improvement < 1e-3:
+            break
     return best
 
 
