@@ -161,26 +161,42 @@ def _closed_loop_undelayed(plan, steps, X, dirs, R, guard, V) -> np.ndarray:
 
     States and input live in one (4, m) slab per sample, [I, w, delta, u], so a
     step is a single einsum with [Phi | Gamma] written straight into the next slab.
+    Once the controller runs, the guard test d * (delta / R) >= guard is one
+    division by d * R (IEEE division is symmetric in sign, so it rounds exactly
+    alike), and a reversal negates d * R and u of the sets concerned.
     """
     n, m = len(dirs), len(R)
     slab = np.empty((n, 4, m))
     slab[0, :3] = X
     d = np.zeros(m, dtype=np.int64)
-    for k in range(n):
+    k = 0
+    for k in range(min(plan.start + 1, n)):       # the log, then the controller's first decision
         x = slab[k]
-        if k <= plan.start:
-            d = _decide(plan, k, d, x[2] / R, guard)
-            u = d * V
-        else:
-            flip = d * (x[2] / R) >= guard         # next_dir once started: d is +-1
-            if flip.any():
-                d = np.where(flip, -d, d)
-                u = d * V
-        x[3] = u
+        d = _decide(plan, k, d, x[2] / R, guard)
+        x[3] = d * V
         dirs[k] = d
-        if k + 1 == n:
-            break
-        np.einsum("ijm,jm->im", steps[k], x, out=slab[k + 1, :3])
+        if k + 1 < n:
+            np.einsum("ijm,jm->im", steps[k], x, out=slab[k + 1, :3])
+    signed_R = d * R
+    u = slab[k, 3].copy()
+    theta = np.empty(m)
+    flip = np.empty(m, dtype=bool)
+    first = k + 1
+    signs = np.empty((n, m))                       # d * R per sample; its sign is the command
+    for k in range(first, n):
+        x = slab[k]
+        np.divide(x[2], signed_R, out=theta)
+        np.greater_equal(theta, guard, out=flip)
+        idx = np.flatnonzero(flip)
+        if len(idx):
+            signed_R[idx] = -signed_R[idx]
+            u[idx] = -u[idx]
+        x[3] = u
+        signs[k] = signed_R
+        if k + 1 < n:
+            np.einsum("ijm,jm->im", steps[k], x, out=slab[k + 1, :3])
+    np.sign(signs[first:], out=signs[first:])
+    dirs[first:] = signs[first:]
     return slab
 
 

@@ -7,7 +7,7 @@ import pytest
 
 from pipeline.config import default_config
 from pipeline.errors import PdrError
-from pipeline.model.batch import simulate_batch
+from pipeline.model.batch import simulate_batch, stacked_state_matrices
 from pipeline.model.simulate import simulate
 from tests.model.ivp_reference import jittered_times
 
@@ -59,3 +59,22 @@ def test_nonsmooth_sets_fall_back_to_single_calls():
 def test_empty_batch_is_refused():
     with pytest.raises(PdrError, match="specs"):
         simulate_batch([], T)
+
+
+def test_stacked_state_matrices_are_the_per_set_matrices():
+    specs = _linear_sets(n=5, seed=3)
+    A, B = stacked_state_matrices([s.params for s in specs])
+    for i, s in enumerate(specs):
+        a, b = s.params.state_matrices()
+        np.testing.assert_array_equal(A[i], a)
+        np.testing.assert_array_equal(B[i], b)
+
+
+def test_delay_longer_than_several_steps_and_a_repeated_instant_equal_single_calls():
+    t = np.concatenate([T[:40], T[39:80]])                 # one zero-length step
+    specs = [replace(s, Td=td) for s, td in zip(_linear_sets(n=4, seed=4), (0.0, 0.03, 0.26, 0.5))]
+    batch = simulate_batch(specs, t)
+    for i, s in enumerate(specs):
+        r = simulate(s, t)
+        np.testing.assert_array_equal(batch.dir[i], r.dir)
+        np.testing.assert_allclose(batch.theta[i], r.theta, rtol=0, atol=1e-11)
