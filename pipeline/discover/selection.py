@@ -31,7 +31,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pipeline.discover.candidates import (
-    Evaluator, Fit, Scan, fit_candidate, folds_by_cycle, parameter_of, polish, prune, refit, scan, sensitivity,
+    Evaluator, Fit, Scan, fit_candidate, folds_by_cycle, intervals, parameter_of, polish, prune, refit, scan,
+    sensitivity, value_of,
 )
 from pipeline.discover.measurement import Measurement, ambiguous_switches, settle_switches
 from pipeline.discover.residuals import events, noise_floor, residuals
@@ -214,6 +215,7 @@ class Selection:
     command_after: np.ndarray             # ... and the final one (differ only in an inferred motor start)
     stopped_for_time: bool                # a further round was not started (TIME_BUDGET_S)
     pruned: list[str]                     # accepted in a round, dropped once later effects made them redundant
+    intervals: list[tuple[float, float]]  # ~95 % interval of each final effect's parameter, all refitted jointly
     meas: Measurement                     # the measurement fitted (inferred switches settled)
 
 
@@ -275,6 +277,7 @@ def select(meas: Measurement, names: tuple[str, ...] | None = None) -> Selection
     kept = prune(ev, effects)
     pruned = [e.name for e in effects if e.name not in {k.name for k in kept}]
     effects = kept
+    spans = intervals(sensitivity(ev, effects), [value_of(e) for e in effects]) if effects else []
     ex_before = excess(ev, ())
     ex_after = excess(ev, effects)
     structured = max(ex_after.values()) > STRUCTURE_FLOORS
@@ -286,7 +289,7 @@ def select(meas: Measurement, names: tuple[str, ...] | None = None) -> Selection
                      excess_after=ex_after, near_tie=near_tie, simulations=ev.simulations,
                      failures=ev.failures, command_before=ev.command_for(()),
                      command_after=ev.command_for(effects), meas=meas, stopped_for_time=stopped_for_time,
-                     pruned=pruned)
+                     pruned=pruned, intervals=spans)
 
 
 def check_declared(meas: Measurement, floor: dict[str, float]) -> list[dict]:

@@ -106,13 +106,11 @@ def augmented_effects(d: "Discovery") -> tuple[Effect, ...]:
     return merge_effects(d.meas.config.effects, d.effects)
 
 
-def _effect_json(e: Effect, sel: Selection) -> dict:
+def _effect_json(e: Effect, span: tuple[float, float], sel: Selection) -> dict:
     out = e.to_json()
-    for rnd in sel.rounds:
-        for a in rnd:
-            if getattr(a, "accepted", False) and a.fit.name == e.name:
-                out["interval"] = {a.fit.parameter: list(a.fit.interval)}
-                out["round"] = a.round
+    out["interval"] = {next(iter(e.parameters)): list(span)}
+    out["round"] = next((a.round for rnd in sel.rounds for a in rnd
+                         if getattr(a, "accepted", False) and a.fit.name == e.name), None)
     return out
 
 
@@ -146,7 +144,7 @@ def discovery_json(d: Discovery, recording: str) -> dict:
     out = {
         "recording": recording,
         "run": d.meas.name,
-        "effects": [_effect_json(e, sel) for e in d.effects],
+        "effects": [_effect_json(e, span, sel) for e, span in zip(d.effects, sel.intervals)],
         "verdict": d.verdict,
         "mse_before": d.mse_before["replay"],
         "mse_after": d.mse_after["replay"],
