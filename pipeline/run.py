@@ -160,7 +160,7 @@ def _withdraw(processed: Path, runs: list[str]) -> None:
 
 def process_recording(csv: Path, processed: Path, stamp: Stamp) -> dict:
     """All stages on one recording (runs in a worker). Never raises: failures are returned."""
-    from pipeline.derive.stage import derive_run
+    from pipeline.derive.stage import derive_and_write
     from pipeline.ingest.stage import ingest_recording
     from pipeline.validate.stage import validate_run
 
@@ -178,10 +178,11 @@ def process_recording(csv: Path, processed: Path, stamp: Stamp) -> dict:
         for paths in result.runs:
             stage = "derive"
             t0 = time.perf_counter()
-            derive_run(paths)
+            tables = derive_and_write(paths)
             timing["derive"] += time.perf_counter() - t0
             stage = "validate"
-            row = validate_run(paths)
+            row = validate_run(paths, derived={"kinematics": tables.kinematics, "phases": tables.phases,
+                                               "overshoot": tables.overshoot})
             for k, v in row.pop("timing_s").items():
                 timing[k] = timing.get(k, 0.0) + v
         for paths in result.runs:

@@ -134,3 +134,27 @@ def test_without_logged_dir_replay_uses_the_inferred_phases(tmp_path):
     assert v["dir_inferred"] is True
     assert v["replay"]["signals"]["theta"]["mse"] < 5e-6           # at the noise floor
     assert v["replay"]["switches"]["n_measured"] >= 10
+
+
+def test_tables_handed_over_by_derive_validate_as_the_files_do(recordings, tmp_path):
+    """``pdr run`` passes derive's tables to validate in memory: the outputs must be those of reading the files."""
+    from pipeline.derive.stage import derive_and_write
+    from pipeline.ingest.stage import ingest_recording
+    from pipeline.validate.rerun_log import stats_markdown
+    from pipeline.validate.stage import derived_tables, panel_tables, validate_run
+
+    (paths,) = ingest_recording(recordings / "clean.csv", tmp_path).runs
+    tables = derive_and_write(paths)
+    outputs = (paths.validation, paths.comparison, paths.overview_png)
+    row_files = validate_run(paths, rrd=False)
+    from_files = {f: f.read_bytes() for f in outputs}
+    row_memory = validate_run(paths, rrd=False, derived={"kinematics": tables.kinematics, "phases": tables.phases,
+                                                         "overshoot": tables.overshoot})
+    for f in outputs:
+        assert f.read_bytes() == from_files[f], f.name
+    row_files.pop("timing_s"), row_memory.pop("timing_s")
+    assert row_memory == row_files
+    assert json.loads(paths.summary.read_text()) == tables.summary
+    validation = json.loads(paths.validation.read_text())
+    handed = panel_tables({"phases": tables.phases, "overshoot": tables.overshoot})
+    assert stats_markdown("clean", validation, handed) == stats_markdown("clean", validation, derived_tables(paths))

