@@ -259,6 +259,7 @@ class _Booking:
 
     def __init__(self, t: np.ndarray, Td: np.ndarray, gamma: "_GammaOfLength", n: int, m: int) -> None:
         self.t, self.Td, self.gamma, self.last = t, Td, gamma, n - 1
+        self.h = np.diff(t)
         reach = np.searchsorted(t, t + float(np.max(Td)) + TIME_EPS, side="right") - 1
         self.depth = int(np.max(reach - np.arange(n))) + 2
         self.extra = np.zeros((self.depth, 3, m))
@@ -272,7 +273,7 @@ class _Booking:
             keep = q < self.last
             sets, arrive, du, q = sets[keep], arrive[keep], du[keep], q[keep]
         # each set appears once per call, so plain fancy-index += is safe (no repeated (step, set) pairs)
-        G = self.gamma(sets, t[q + 1] - np.maximum(arrive, t[q]))
+        G = self.gamma(sets, np.minimum(t[q + 1] - arrive, self.h[q]))      # t_{q+1} - max(arrive, t_q)
         self.extra[q % self.depth, :, sets] += G * du[:, None]
         self.du_from[(q + 1) % self.depth, sets] += du
 
@@ -302,10 +303,13 @@ class _GammaOfLength:
         self.A, self.B = A, B
         lam, V = np.linalg.eig(A)
         self.lam = lam
-        bt = np.einsum("mij,mj->mi", np.linalg.inv(V), B.astype(complex))
+        Vinv = np.linalg.inv(V)
+        bt = np.einsum("mij,mj->mi", Vinv, B.astype(complex))
         self.W = V * bt[:, None, :]                # Gamma(tau) = Re W expm1(lam tau) / lam
         scale = np.maximum(1.0, np.max(np.abs(lam), axis=1))
-        self.exact = (np.linalg.cond(V) > 1e6) | np.any(np.abs(lam) < 1e-9 * scale[:, None], axis=1)
+        # 1-norm condition number from the inverse at hand (an SVD per set costs more than the whole step)
+        cond = np.max(np.abs(V).sum(axis=1), axis=1) * np.max(np.abs(Vinv).sum(axis=1), axis=1)
+        self.exact = (cond > 1e6) | np.any(np.abs(lam) < 1e-9 * scale[:, None], axis=1)
         self.any_exact = bool(self.exact.any())
 
     def __call__(self, sets: np.ndarray, tau: np.ndarray) -> np.ndarray:
