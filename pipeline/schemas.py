@@ -161,6 +161,9 @@ def _clears(col: Column, arr: pa.ChunkedArray) -> bool:
         with np.errstate(over="ignore", invalid="ignore"):
             if x.dtype.kind == "f" and not np.isfinite(x.sum()):     # a NaN or inf makes the sum so
                 return False
+    if col.min is None and col.max is None and col.allowed is None:
+        return True
+    if numeric:
         lo, hi = float(x.min()), float(x.max())     # float() as in check: monotone, so the same verdict
         if (col.min is not None and lo < col.min) or (col.max is not None and hi > col.max):
             return False
