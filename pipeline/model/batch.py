@@ -3,7 +3,7 @@
 For linear plants (viscous friction, driver drop, rack inertia, spring scale,
 loop delay and sensor offset -- everything but Coulomb friction and backlash)
 the m closed loops advance together: per distinct step length one batched
-matrix exponential (``linear.expm_batch`` on the stacked augmented matrices),
+matrix exponential (``linear.phi_gamma_columns`` on the stacked parameter sets),
 then per sample one stacked matrix-vector product and a vectorised ``next_dir``.
 A delayed command that reaches the motor inside a step adds
 ``Gamma(h - a) * du`` for the sets concerned (same superposition as
@@ -21,7 +21,7 @@ import numpy as np
 
 from pipeline.errors import PdrError
 from pipeline.model.effects import PlantSpec
-from pipeline.model.linear import augmented_batch, step_key
+from pipeline.model.linear import augmented_batch, phi_gamma_columns, step_key
 from pipeline.model.simulate import TIME_EPS, SimResult, _plan, simulate
 
 
@@ -136,10 +136,9 @@ def _step_matrices(A: np.ndarray, B: np.ndarray, hs: list[float]) -> list[np.nda
     keys = {h: step_key(h) for h in set(hs)}
     lengths = sorted(set(keys.values()))
     m = A.shape[0]
-    L = len(lengths)
-    Phi, Gam = augmented_batch(np.tile(A, (L, 1, 1)), np.tile(B, (L, 1)), np.repeat(lengths, m))
-    aug = np.concatenate([Phi, Gam[:, :, None]], axis=2).reshape(L, m, 3, 4)
-    by_length = {h: np.ascontiguousarray(aug[i].transpose(1, 2, 0)) for i, h in enumerate(lengths)}
+    cols = phi_gamma_columns(np.tile(A, (len(lengths), 1, 1)), np.tile(B, (len(lengths), 1)),
+                             np.repeat(lengths, m))
+    by_length = {h: np.ascontiguousarray(cols[:, :, i * m:(i + 1) * m]) for i, h in enumerate(lengths)}
     return [by_length[keys[h]] for h in hs]
 
 
@@ -180,23 +179,22 @@ def _closed_loop_undelayed(plan, steps, X, dirs, R, guard, V) -> np.ndarray:
     signed_R = d * R
     u = slab[k, 3].copy()
     theta = np.empty(m)
-    flip = np.empty(m, dtype=bool)
     first = k + 1
-    signs = np.empty((n, m))                       # d * R per sample; its sign is the command
+    flips = np.zeros((n, m), dtype=bool)          # where a set reverses at sample k
     for k in range(first, n):
         x = slab[k]
         np.divide(x[2], signed_R, out=theta)
+        flip = flips[k]
         np.greater_equal(theta, guard, out=flip)
         idx = np.flatnonzero(flip)
-        if len(idx):
-            signed_R[idx] = -signed_R[idx]
-            u[idx] = -u[idx]
+        signed_R[idx] = -signed_R[idx]
+        u[idx] = -u[idx]
         x[3] = u
-        signs[k] = signed_R
         if k + 1 < n:
             np.einsum("ijm,jm->im", steps[k], x, out=slab[k + 1, :3])
-    np.sign(signs[first:], out=signs[first:])
-    dirs[first:] = signs[first:]
+    if first < n:                                  # the command flips with every reversal since the start
+        odd = np.logical_xor.accumulate(flips[first:], axis=0)
+        dirs[first:] = np.where(odd, -d, d)
     return slab
 
 

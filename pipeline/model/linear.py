@@ -119,10 +119,36 @@ def expm_batch(M: np.ndarray) -> np.ndarray:
 
 def augmented_batch(A: np.ndarray, B: np.ndarray, h: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
     """Phi(h), Gamma(h) for stacks A (m, 3, 3), B (m, 3) and step lengths h (scalar or (m,))."""
+    cols = phi_gamma_columns(A, B, h)
+    return cols[:, :3].transpose(2, 0, 1), cols[:, 3].T
+
+
+def phi_gamma_columns(A: np.ndarray, B: np.ndarray, h: np.ndarray | float) -> np.ndarray:
+    """[Phi(h) | Gamma(h)] as (3, 4, m), sets last: ``phi_gamma``'s Taylor/squaring for a whole stack.
+
+    With the sets on the last axis every product is one einsum over contiguous
+    rows (a stacked (m, 4, 4) matmul loops over tiny matrices instead), and
+    carrying (P, g) skips the augmented matrix's constant last row: together
+    ~4x less time than ``expm_batch`` on the augmented stack.  One scaling for
+    the whole stack (the largest norm), so the truncation bound of
+    ``expm_batch`` holds for every set.
+    """
     m = A.shape[0]
-    hh = np.broadcast_to(np.asarray(h, dtype=float), (m,))[:, None, None]
-    M = np.zeros((m, 4, 4))
-    M[:, :3, :3] = A * hh
-    M[:, :3, 3] = B * hh[:, :, 0]
-    E = expm_batch(M)
-    return E[:, :3, :3], E[:, :3, 3]
+    hh = np.broadcast_to(np.asarray(h, dtype=float), (m,))
+    norm = float(np.max((np.abs(A).sum(axis=2) + np.abs(B)).max(axis=1) * np.abs(hh))) if m else 0.0
+    s = max(0, math.ceil(math.log2(norm / 0.25))) if norm > 0.25 else 0
+    scale = hh / (2.0 ** s)
+    X = np.ascontiguousarray(A.transpose(1, 2, 0)) * scale          # (3, 3, m)
+    b = np.ascontiguousarray(B.T) * scale                           # (3, m)
+    eye = np.eye(3)[:, :, None]
+    P = eye + X / 12.0
+    g = b / 12.0
+    for j in range(11, 0, -1):                                      # Horner on (P, g), as phi_gamma
+        g = (np.einsum("ijm,jm->im", X, g) + b) / j
+        P = np.einsum("ijm,jkm->ikm", X, P)
+        P /= j
+        P += eye
+    for _ in range(s):                                              # squaring: (P, g) <- (P P, P g + g)
+        g = np.einsum("ijm,jm->im", P, g) + g
+        P = np.einsum("ijm,jkm->ikm", P, P)
+    return np.concatenate([P, g[:, None, :]], axis=1)

@@ -78,3 +78,19 @@ def test_delay_longer_than_several_steps_and_a_repeated_instant_equal_single_cal
         r = simulate(s, t)
         np.testing.assert_array_equal(batch.dir[i], r.dir)
         np.testing.assert_allclose(batch.theta[i], r.theta, rtol=0, atol=1e-11)
+
+
+def test_stacked_step_matrices_match_scipy_expm():
+    from scipy.linalg import expm
+
+    from pipeline.model.linear import augmented_batch
+    specs = _linear_sets(n=6, seed=5)
+    A, B = stacked_state_matrices([s.params for s in specs])
+    h = np.array([0.05, 0.051, 0.0, 0.013, 0.2, 0.05])
+    Phi, Gam = augmented_batch(A, B, h)
+    for i in range(len(specs)):
+        M = np.zeros((4, 4))
+        M[:3, :3], M[:3, 3] = A[i] * h[i], B[i] * h[i]
+        E = expm(M)
+        np.testing.assert_allclose(Phi[i], E[:3, :3], rtol=1e-12, atol=1e-14)
+        np.testing.assert_allclose(Gam[i], E[:3, 3], rtol=1e-12, atol=1e-14)
