@@ -218,6 +218,7 @@ def _general(plan, steps, X, dirs, A, B, R, guard, V, Td) -> np.ndarray:
     u_cmd = np.zeros(m)
     own_from = plan.start + 1 if plan.closed_loop else n
     V2 = 2.0 * V
+    log = plan.dir_log.tolist() if plan.dir_log is not None else None
     for k in range(n):
         x = slab[k]
         if k >= own_from:                          # next_dir once started: d is +-1, a flip is a change
@@ -226,7 +227,7 @@ def _general(plan, steps, X, dirs, A, B, R, guard, V, Td) -> np.ndarray:
                 now = -d[flip]
                 d[flip] = now
                 book(k, flip, now * V2[flip])      # u: -now V -> now V
-        else:
+        elif not (k and log is not None and log[k] == log[k - 1]):    # a logged command that repeats changes nothing
             d = _decide(plan, k, d, x[2] / R, guard)
             new = d * V
             changed = np.flatnonzero(new != u_cmd) if k else np.arange(m)
