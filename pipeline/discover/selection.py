@@ -55,6 +55,7 @@ NEAR_TIE = 2.0              # runner-up leaves at most twice the winner's held-o
 MAX_EFFECTS = 3
 TIME_BUDGET_S = 8.0          # CPU s: a further round starts only if, at the last round's pace, it ends within this
 FULL_FITS = (8, 3, 3)        # per round, how many of the best-scanning candidates get the full assessment
+                             # (every one in round 1; later rounds only the 3 that gain most in the coarse scan)
 
 
 @dataclass

@@ -94,6 +94,7 @@ def test_rrd_has_measurement_models_and_residuals(delay_run):
     assert len(reader.blueprints()) == 1
 
 
+@pytest.mark.slow
 def test_rerun_gives_identical_files(delay_run, tmp_path):
     csv, out, _ = delay_run
     res = runner.invoke(app, ["discover", str(csv), "--out", str(tmp_path), "--no-rrd"])
@@ -103,6 +104,7 @@ def test_rerun_gives_identical_files(delay_run, tmp_path):
         assert (tmp_path / name).read_bytes() == (out / name).read_bytes(), name
 
 
+@pytest.mark.slow
 def test_adopt_only_on_request_and_validation_reads_it_back(tmp_path):
     _, _, csv = rig_kinematics((_effect("current_sensor_offset", 0.1),), seed=9, work=tmp_path)
     sidecar = csv.with_suffix(".toml")
@@ -158,6 +160,7 @@ def test_snippet_layers_over_the_rig_like_validation(tmp_path):
     assert np.isclose(cfg.plant_spec().params.b, 7.7e-4 + 2e-4)
 
 
+@pytest.mark.slow
 def test_an_overstated_declared_effect_is_pointed_out_not_named(tmp_path):
     """The TOML declares a loop delay the rig does not have: nothing to add (effects only add),
     so the verdict is unexplained, and the report says which declared value fits at what."""
