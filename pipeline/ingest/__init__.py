@@ -4,7 +4,10 @@ Entry points for other stages:
   ``stage.ingest_recording(csv_path, processed, *, config=None) -> IngestResult``
       ``.runs`` (``RunPaths``, one per kept segment), ``.report`` (dict, also in each run's
       ``ingest_report.json``), ``.tables`` (run name -> signals DataFrame).
-  ``stage.ingest_capture(data, cfg, source, stem) -> (list[RunData], report)``: the pure core.
+  ``stage.ingest_capture(data, cfg, source, stem) -> (list[RunData], report)``: the pure core,
+      ``read_capture`` (tables; every refusal raised here) then ``capture_report``.
+  ``stage.ingest_signals(data, cfg, source, stem, processed) -> (runs, report, list[RunPaths])``:
+      the pure core with each run's signals.parquet written in a worker thread beside the report.
 
 Modules: ``plain`` (fast path for clean captures), ``parse`` (general line-by-line path,
 quarantine, re-framing), ``segments`` (range rules, time order, resets), ``timing``,
