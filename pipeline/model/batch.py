@@ -251,9 +251,10 @@ class _Booking:
     starts (as in ``simulate``); one landing in step q contributes
     Gamma(t_{q+1} - arrive) du there (``extra``, laid out like the state rows)
     and du to the voltage held from q + 1 on (``du_from``).  A change lands at
-    most ``ahead`` steps after the sample that decided it, so both live in ring
-    buffers of that depth (small enough to stay in cache): ``take(k)`` hands
-    out step k's row and clears it for reuse.
+    most ``depth - 2`` steps after the sample that decided it, so both live in
+    ring buffers of that depth (small enough to stay in cache instead of two
+    (n, m) arrays): ``hold_voltage`` and ``add_extra`` read step k's row and
+    clear it for reuse.
     """
 
     def __init__(self, t: np.ndarray, Td: np.ndarray, gamma: "_GammaOfLength", n: int, m: int) -> None:
