@@ -186,9 +186,8 @@ def _closed_loop_undelayed(plan, steps, X, dirs, R, guard, V) -> np.ndarray:
         np.divide(x[2], signed_R, out=theta)
         flip = flips[k]
         np.greater_equal(theta, guard, out=flip)
-        idx = np.flatnonzero(flip)
-        signed_R[idx] = -signed_R[idx]
-        u[idx] = -u[idx]
+        np.negative(signed_R, out=signed_R, where=flip)
+        np.negative(u, out=u, where=flip)
         x[3] = u
         if k + 1 < n:
             np.einsum("ijm,jm->im", steps[k], x, out=slab[k + 1, :3])
