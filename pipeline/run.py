@@ -25,10 +25,12 @@ from __future__ import annotations
 
 import fcntl
 import hashlib
+import importlib
 import json
 import os
 import shutil
 import sys
+import threading
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -47,7 +49,7 @@ PACKAGE_ROOT = Path(__file__).resolve().parent
 SCHEMA_ROOT = PACKAGE_ROOT.parent / "schemas"
 STAGES = ("ingest", "derive", "validate")
 # Imported once in the forkserver, inherited by every worker.
-PRELOAD = ["numpy", "pandas", "pyarrow.parquet", "scipy.linalg", "rerun", "matplotlib.figure",
+PRELOAD = ["numpy", "pandas", "pyarrow.parquet", "rerun", "matplotlib.figure",
            "pipeline.ingest.stage", "pipeline.derive.stage", "pipeline.validate.stage",
            "pipeline.validate.rerun_log", "pipeline.validate.warmup"]
 
@@ -160,12 +162,66 @@ def _withdraw(processed: Path, runs: list[str]) -> None:
 
 def process_recording(csv: Path, processed: Path, stamp: Stamp) -> dict:
     """All stages on one recording (runs in a worker). Never raises: failures are returned."""
+    return process_chunk([(csv, stamp)], processed)[0]
+
+
+def process_chunk(items: list[tuple[Path, Stamp]], processed: Path) -> list[dict]:
+    """All stages on a few recordings in one worker task; never raises: failures are returned per recording.
+
+    Every stage but the ``.rrd`` verification runs recording by recording;
+    then one ``rerun rrd verify`` checks all the chunk's files (starting the
+    tool costs more than verifying a 500-sample file), and only the
+    recordings whose files passed get their stamps.  A recording whose
+    file fails is reported failed and its outputs withdrawn, like any other
+    failure, so a re-run does it again.
+    """
+    import resource
+
+    from pipeline.validate.rerun_log import verify_rrds
+
+    def child_cpu() -> float:
+        usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+        return usage.ru_utime + usage.ru_stime
+
+    done = [_all_stages(csv, processed) for csv, _stamp in items]
+    rrds = [RunPaths(processed / name).rrd for out, _old in done if out["status"] == "ok" for name in out["runs"]]
+    t0, c0 = time.perf_counter(), child_cpu()
+    bad = verify_rrds(rrds)
+    # the shared verification's time and CPU (the tool is a child process), split evenly over its files
+    wall, cpu = (time.perf_counter() - t0) / max(len(rrds), 1), (child_cpu() - c0) / max(len(rrds), 1)
+    results = []
+    for (csv, stamp), (out, old) in zip(items, done):
+        if out["status"] == "ok":
+            runs = [RunPaths(processed / name) for name in out["runs"]]
+            out["timing_s"]["rrd_verify"] = wall * len(runs)
+            out["cpu_s"] += cpu * len(runs)
+            out["cpu_stage_s"]["rrd_verify"] = cpu * len(runs)
+            failed = [p.rrd for p in runs if p.rrd in bad]
+            if failed:
+                out.update(status="failed", error=f"validate: {bad[failed[0]]} ({failed[0].name})")
+                for path in failed:
+                    path.unlink(missing_ok=True)
+            else:
+                for paths in runs:
+                    write_json(paths.stamp, stamp.to_json(out["runs"]))
+                for name in set(old) - set(out["runs"]):
+                    shutil.rmtree(processed / name, ignore_errors=True)
+        if out["status"] == "failed":
+            _withdraw(processed, sorted(set(old) | set(out["runs"])))
+        results.append(out)
+    return results
+
+
+def _all_stages(csv: Path, processed: Path) -> tuple[dict, list[str]]:
+    """Ingest, derive and validate one recording (``.rrd`` not yet verified); the result and its previous runs."""
     from pipeline.derive.stage import derive_and_write
     from pipeline.ingest.stage import ingest_recording
     from pipeline.validate.stage import validate_run
 
     timing = {"ingest": 0.0, "derive": 0.0}
-    out: dict = {"recording": csv.name, "status": "ok", "runs": [], "error": None, "timing_s": timing}
+    cpu = {"ingest": 0.0, "derive": 0.0, "validate": 0.0}   # process CPU (all threads) per stage
+    out: dict = {"recording": csv.name, "status": "ok", "runs": [], "error": None, "timing_s": timing,
+                 "cpu_stage_s": cpu}
     cpu0 = time.process_time()      # all threads of this worker: what the recording cost the machine
     old = previous_runs(processed, csv)
     stage = "ingest"
@@ -173,30 +229,27 @@ def process_recording(csv: Path, processed: Path, stamp: Stamp) -> dict:
         t0 = time.perf_counter()
         result = ingest_recording(csv, processed)
         timing["ingest"] = time.perf_counter() - t0
-        names = [p.name for p in result.runs]
-        out["runs"] = names
+        cpu["ingest"] = time.process_time() - cpu0
+        out["runs"] = [p.name for p in result.runs]
         for paths in result.runs:
             stage = "derive"
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             tables = derive_and_write(paths)
             timing["derive"] += time.perf_counter() - t0
             stage = "validate"
+            c1 = time.process_time()
             row = validate_run(paths, derived={"kinematics": tables.kinematics, "phases": tables.phases,
-                                               "overshoot": tables.overshoot})
+                                               "overshoot": tables.overshoot}, verify=False)
+            cpu["derive"] += c1 - c0
+            cpu["validate"] += time.process_time() - c1
             for k, v in row.pop("timing_s").items():
                 timing[k] = timing.get(k, 0.0) + v
-        for paths in result.runs:
-            write_json(paths.stamp, stamp.to_json(names))
-        for name in set(old) - set(names):
-            shutil.rmtree(processed / name, ignore_errors=True)
     except PdrError as err:
         out.update(status="failed", error=f"{stage}: {err}")
     except Exception as err:  # a bug in pdr: still never stops the other recordings
         out.update(status="failed", error=f"{stage}: internal error {type(err).__name__}: {err}")
-    if out["status"] == "failed":
-        _withdraw(processed, sorted(set(old) | set(out["runs"])))
     out["cpu_s"] = time.process_time() - cpu0
-    return out
+    return out, old
 
 
 @dataclass
@@ -213,6 +266,14 @@ class RunReport:
     def cpu_seconds(self) -> float:
         """CPU time the recordings took in the workers (excludes pool start-up and waiting)."""
         return sum(r.get("cpu_s", 0.0) for r in self.ran)
+
+    def stage_cpu_seconds(self) -> dict[str, float]:
+        """CPU seconds per stage summed over the recordings (``rrd_verify``: the ``rerun`` child processes)."""
+        total: dict[str, float] = {}
+        for r in self.ran:
+            for k, v in r.get("cpu_stage_s", {}).items():
+                total[k] = total.get(k, 0.0) + v
+        return total
 
     def stage_seconds(self) -> dict[str, float]:
         total: dict[str, float] = {}
@@ -256,6 +317,15 @@ def _isolated(csv: Path, processed: Path, stamp: Stamp) -> dict:
                     "error": f"the worker process died while processing it ({err})", "timing_s": {}}
 
 
+CHUNK_MAX = 4      # recordings per worker task: one verify call for 4 files, at most ~0.3 s of tail imbalance
+
+
+def chunks(todo: list, jobs: int) -> list[list]:
+    """Consecutive slices of ``todo``: up to ``CHUNK_MAX`` each, small enough that every worker gets several."""
+    size = max(1, min(CHUNK_MAX, len(todo) // (4 * jobs)))
+    return [todo[i:i + size] for i in range(0, len(todo), size)]
+
+
 def _execute(todo: list[tuple[Path, Stamp]], processed: Path, jobs: int, show_progress: bool) -> list[dict]:
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
@@ -264,26 +334,26 @@ def _execute(todo: list[tuple[Path, Stamp]], processed: Path, jobs: int, show_pr
                   TextColumn("{task.description}"), disable=not show_progress, transient=False) as bar:
         task = bar.add_task("", total=len(todo))
         if jobs <= 1 or len(todo) <= 1:
-            for csv, stamp in todo:
-                bar.update(task, description=csv.name)
-                results.append(process_recording(csv, processed, stamp))
-                bar.advance(task)
+            for chunk in chunks(todo, 1):
+                bar.update(task, description=chunk[0][0].name)
+                results.extend(process_chunk(chunk, processed))
+                bar.advance(task, len(chunk))
             return results
         from concurrent.futures import as_completed
         from concurrent.futures.process import BrokenProcessPool
 
         broken: list[tuple[Path, Stamp]] = []
         with _pool(min(jobs, len(todo))) as pool:
-            futures = {pool.submit(process_recording, csv, processed, stamp): (csv, stamp) for csv, stamp in todo}
+            futures = {pool.submit(process_chunk, chunk, processed): chunk for chunk in chunks(todo, jobs)}
             for fut in as_completed(futures):
-                csv, stamp = futures[fut]
+                chunk = futures[fut]
                 try:
-                    results.append(fut.result())
+                    results.extend(fut.result())
                 except BrokenProcessPool:
-                    broken.append((csv, stamp))
+                    broken.extend(chunk)
                     continue
-                bar.update(task, description=csv.name)
-                bar.advance(task)
+                bar.update(task, description=chunk[-1][0].name)
+                bar.advance(task, len(chunk))
         # A worker that dies (e.g. a crash in a native library) takes every pending recording
         # with it: retry those one by one, each in a fresh worker, so only the culprit fails.
         for csv, stamp in sorted(broken, key=lambda item: item[0]):
@@ -316,6 +386,8 @@ def run_pipeline(raw: Path, processed: Path, *, jobs: int = 2, force: bool = Fal
             else:
                 todo.append((csv, stamp))
         if todo:
+            # the summary below needs pandas: import it while the workers start (a core is idle then)
+            threading.Thread(target=importlib.import_module, args=("pipeline.validate.summary",), daemon=True).start()
             report.ran = _execute(todo, processed, jobs, show_progress)
         report.removed = prune_orphans(processed, raw, recordings)
         summary_csv = processed / "summary.csv"

@@ -289,12 +289,35 @@ def rerun_executable() -> str:
     return found
 
 
+def _verify(paths: list[Path]) -> str | None:
+    """Run ``rerun rrd verify`` on the files; None when all pass, else the tool's last line."""
+    proc = subprocess.run([rerun_executable(), "rrd", "verify", *map(str, paths)], capture_output=True, text=True)
+    if proc.returncode == 0:
+        return None
+    msg = (proc.stderr or proc.stdout).strip().splitlines()
+    return f"rerun rrd verify failed: {msg[-1] if msg else 'exit ' + str(proc.returncode)}"
+
+
 def verify_rrd(path: Path) -> None:
     """``rerun rrd verify``: the file loads and every chunk is interpretable."""
-    proc = subprocess.run([rerun_executable(), "rrd", "verify", str(path)], capture_output=True, text=True)
-    if proc.returncode != 0:
-        msg = (proc.stderr or proc.stdout).strip().splitlines()
-        raise PdrError(f"rerun rrd verify failed: {msg[-1] if msg else 'exit ' + str(proc.returncode)}", path=path)
+    error = _verify([path])
+    if error is not None:
+        raise PdrError(error, path=path)
+
+
+def verify_rrds(paths: list[Path]) -> dict[Path, str]:
+    """``verify_rrd`` on many files with one start of the tool (~40 ms each saved); returns the failures.
+
+    When the batch fails, each file is verified on its own so only the culprits are named.
+    """
+    if not paths or _verify(paths) is None:
+        return {}
+    failed = {}
+    for path in paths:
+        error = _verify([path])
+        if error is not None:
+            failed[path] = error
+    return failed
 
 
 def write_rrd(target: Path, name: str, kin: pd.DataFrame, sims: dict[str, SimResult], validation: dict,

@@ -105,12 +105,14 @@ def write_comparison(target: Path, table: pd.DataFrame) -> None:
 
 
 def validate_run(paths: RunPaths, model_override: ModelOverride = None, *, rrd: bool = True,
-                 png: bool = True, derived: dict[str, pd.DataFrame] | None = None) -> dict:
+                 png: bool = True, derived: dict[str, pd.DataFrame] | None = None, verify: bool = True) -> dict:
     """Validate one derived run; returns the summary row (``summary_row``) plus ``timing_s``.
 
     ``derived``: the derive stage's tables just written for this run (keys
     ``kinematics``, ``phases``, ``overshoot``), handed over by ``pdr run`` so
     they are not read back from the Parquet files it has just written.
+    ``verify=False`` leaves ``rerun rrd verify`` of the ``.rrd`` to the caller
+    (``pdr run`` verifies a worker's files in one call before stamping them).
     """
     from pipeline.validate.plots import write_overview
     from pipeline.validate.rerun_log import write_rrd
@@ -140,7 +142,7 @@ def validate_run(paths: RunPaths, model_override: ModelOverride = None, *, rrd: 
     t4 = time.perf_counter()
     if rrd:
         panels = derived_tables(paths) if derived is None else panel_tables(derived)
-        write_rrd(paths.rrd, paths.name, kin, sims, validation, spec.guard_rad, panels)
+        write_rrd(paths.rrd, paths.name, kin, sims, validation, spec.guard_rad, panels, verify=verify)
     t5 = time.perf_counter()
     if png:
         title = (f"{paths.name}   MSE replay: theta {_short(validation, 'replay', 'theta')}, "

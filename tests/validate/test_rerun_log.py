@@ -9,7 +9,7 @@ from rerun.chunk import RrdReader
 
 from pipeline.config import default_config
 from pipeline.validate.compare import compare, simulate_both, switch_indices
-from pipeline.validate.rerun_log import VIEW_NAMES, guard_crossings, verify_rrd, write_rrd
+from pipeline.validate.rerun_log import VIEW_NAMES, guard_crossings, verify_rrd, verify_rrds, write_rrd
 from tests.validate.synthetic import synthetic_kinematics
 
 SPEC = default_config().plant_spec()
@@ -112,3 +112,12 @@ def test_a_torn_file_fails_verification(tmp_path):
     bad.write_bytes(b"RRF2" + bytes(100))
     with pytest.raises(PdrError, match="rerun rrd verify failed"):
         verify_rrd(bad)
+
+
+def test_batch_verification_names_only_the_torn_files(rrd, tmp_path):
+    good, _, _ = rrd
+    torn = tmp_path / "torn.rrd"
+    torn.write_bytes(good.read_bytes()[: good.stat().st_size // 2])
+    assert verify_rrds([good, good]) == {}
+    failed = verify_rrds([good, torn, good])
+    assert list(failed) == [torn] and "rerun rrd verify failed" in failed[torn]
