@@ -10,6 +10,7 @@ effects; stacking two of the same kind adds them up.
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from dataclasses import dataclass, fields, replace
 from typing import ClassVar, Iterable
 
@@ -42,7 +43,7 @@ class PlantSpec:
 
 
 @dataclass(frozen=True)
-class Effect:
+class Effect(ABC):
     """Base class: subclasses declare ``name``, ``UNITS``, ``BOUNDS``, ``WHAT`` and ``apply``."""
 
     name: ClassVar[str]
@@ -50,8 +51,9 @@ class Effect:
     BOUNDS: ClassVar[dict[str, tuple[float, float]]]   # physically sensible range, used for checks and fits
     WHAT: ClassVar[str]
 
-    def apply(self, spec: PlantSpec) -> PlantSpec:  # pragma: no cover - abstract
-        raise NotImplementedError
+    @abstractmethod
+    def apply(self, spec: PlantSpec) -> PlantSpec:
+        """Fold this effect into the plant spec."""
 
     @property
     def parameters(self) -> dict[str, float]:
