@@ -88,3 +88,15 @@ def test_undefined_figures_are_null_in_json(tmp_path):
     v = json.loads(paths.validation.read_text())
     assert v["measured"]["oscillation"]["period_s"] is None
     assert np.isnan(pd.read_parquet(paths.comparison)["omega_rad_s"]).sum() == 0
+
+
+def test_overview_png_decodes_to_the_rendered_pixels():
+    import io
+
+    from pipeline.validate.plots import png_rgb
+
+    rgb = np.random.default_rng(3).integers(0, 256, (5, 7, 3), dtype=np.uint8)
+    rgb[2] = 255
+    with Image.open(io.BytesIO(png_rgb(rgb))) as im:
+        assert im.size == (7, 5) and im.mode == "RGB"
+        np.testing.assert_array_equal(np.asarray(im), rgb)
