@@ -137,8 +137,10 @@ def centre_drift(table: pd.DataFrame) -> tuple[float, bool, int]:
     friction -- which moves the overshoot at both guards the same way and
     would fool a trend on the overshoot itself.
     """
-    turns = table[table["turned"]].sort_values("turn_t_s")
-    th, tt = turns["turn_theta_rad"].to_numpy(float), turns["turn_t_s"].to_numpy(float)
+    turned = np.flatnonzero(table["turned"].to_numpy(bool))
+    th, tt = table["turn_theta_rad"].to_numpy(float)[turned], table["turn_t_s"].to_numpy(float)[turned]
+    order = np.argsort(tt, kind="quicksort")          # what sort_values("turn_t_s") does
+    th, tt = th[order], tt[order]
     centre, when = (th[:-1] + th[1:]) / 2.0, (tt[:-1] + tt[1:]) / 2.0
     centre, when = centre[SETTLING_TURNS:], when[SETTLING_TURNS:]
     change, significant = _trend(when, centre)
@@ -154,15 +156,19 @@ def overshoot_summary(table: pd.DataFrame, guard_rad: float, period_s: float, di
     oscillation centre instead (``centre_drift``).
     """
     out: dict = {"guard_rad": guard_rad, "crossings": int(len(table)), "directions": {}, "flags": []}
+    # plain arrays and masks: pandas row selections cost more than the statistics here
+    direction, turned = table["direction"].to_numpy(), table["turned"].to_numpy(bool)
+    col = {c: table[c].to_numpy(float) for c in ("overshoot_rad", "trigger_excess_rad", "turn_delay_s",
+                                                  "current_reversal_delay_s", "turn_t_s")}
     for d, name in ((1, "upper"), (-1, "lower")):
-        sub = table[table["direction"] == d]
-        steady = sub[sub["turned"]].iloc[1:]
-        trend, _ = _trend(steady["turn_t_s"].to_numpy(float), steady["overshoot_rad"].to_numpy(float))
+        sub = direction == d
+        steady = np.flatnonzero(sub & turned)[1:]
+        trend, _ = _trend(col["turn_t_s"][steady], col["overshoot_rad"][steady])
         out["directions"][name] = {
-            "overshoot_rad": describe(sub["overshoot_rad"]),
-            "trigger_excess_rad": describe(sub["trigger_excess_rad"]),
-            "turn_delay_s": describe(sub["turn_delay_s"]),
-            "current_reversal_delay_s": describe(sub["current_reversal_delay_s"]),
+            "overshoot_rad": describe(col["overshoot_rad"][sub]),
+            "trigger_excess_rad": describe(col["trigger_excess_rad"][sub]),
+            "turn_delay_s": describe(col["turn_delay_s"][sub]),
+            "current_reversal_delay_s": describe(col["current_reversal_delay_s"][sub]),
             "trend_rad": trend,
         }
     drift, significant, used = centre_drift(table)

@@ -59,12 +59,18 @@ def local_polyfit(t: np.ndarray, y: np.ndarray, window: int, order: int, deriv: 
     start = np.clip(np.arange(n) - w // 2, 0, n - w)
     idx = start[:, None] + np.arange(w)[None, :]                        # (n, w) window indices
     scale = float(np.median(np.diff(t))) or 1.0                          # conditioning: time in periods
-    dt = (t[idx] - t[:, None]) / scale
+    coef = _fit_windows(t, y, np.arange(n), idx, np.full(n, scale), p)
+    return coef[:, 0] if deriv == 0 else coef[:, 1] / scale
+
+
+def _fit_windows(t: np.ndarray, y: np.ndarray, rows: np.ndarray, idx: np.ndarray, scale: np.ndarray,
+                 p: int) -> np.ndarray:
+    """Coefficients (in scaled time) of a degree-``p`` least-squares polynomial per row, centred on ``t[rows]``."""
+    dt = (t[idx] - t[rows][:, None]) / scale[:, None]
     X = dt[:, :, None] ** np.arange(p + 1)[None, None, :]                # (n, w, p+1) design matrices
     XtX = np.einsum("nwi,nwj->nij", X, X)
     Xty = np.einsum("nwi,nw->ni", X, y[idx])
-    coef = np.linalg.solve(XtX, Xty[:, :, None])[:, :, 0]
-    return coef[:, 0] if deriv == 0 else coef[:, 1] / scale
+    return np.linalg.solve(XtX, Xty[:, :, None])[:, :, 0]
 
 
 ESTIMATORS = {
@@ -86,7 +92,17 @@ def smooth_by_phase(t: np.ndarray, y: np.ndarray, starts: np.ndarray, window: in
     y = np.asarray(y, dtype=float)
     out = np.empty(len(y))
     bounds = list(np.asarray(starts, dtype=np.int64)) + [len(y)]
+    full = []                           # phases with a whole window: fitted together below
     for a, b in zip(bounds[:-1], bounds[1:]):
         hi = min(b + 1, len(y))
-        out[a:b] = local_polyfit(t[a:hi], y[a:hi], window, order)[: b - a]
+        if hi - a >= window:
+            full.append((a, b, hi))
+        else:
+            out[a:b] = local_polyfit(t[a:hi], y[a:hi], window, order)[: b - a]
+    if full:
+        rows = np.concatenate([np.arange(a, b) for a, b, _ in full])
+        # local_polyfit's window placement and time scale, phase by phase, in one batch of fits
+        start = np.concatenate([np.clip(np.arange(b - a) - window // 2, 0, hi - a - window) + a for a, b, hi in full])
+        scale = np.concatenate([np.full(b - a, float(np.median(np.diff(t[a:hi]))) or 1.0) for a, b, hi in full])
+        out[rows] = _fit_windows(t, y, rows, start[:, None] + np.arange(window)[None, :], scale, order)[:, 0]
     return out
