@@ -8,10 +8,13 @@ deciding that reads a few kilobytes per recording and imports nothing heavy, so
 a re-run with nothing changed takes well under two seconds.
 
 Parallel: recordings are independent, so they go to a process pool (both
-cores by default).  Workers come from a ``forkserver`` that has already
-imported numpy, pandas, pyarrow, scipy, rerun and matplotlib, so a worker
+cores by default), a few per task (``chunks``) so that one ``rerun rrd
+verify`` checks several files.  Workers come from a ``forkserver`` that has
+already imported numpy, pandas, pyarrow, rerun and matplotlib, so a worker
 starts in milliseconds, and each worker keeps its overview figure between
-recordings.  One bad recording never stops the others: its error is reported
+recordings.  Those imports take ~2 s on one core; meanwhile this process
+ingests recordings from the end of the list (``_ingest_ahead``), which the
+workers then skip.  One bad recording never stops the others: its error is reported
 (a ``PdrError`` as the user-facing line, anything else as an internal error),
 its stale outputs are withdrawn so ``pdr gate`` cannot pass on old figures,
 and the exit status is non-zero.
@@ -165,7 +168,8 @@ def process_recording(csv: Path, processed: Path, stamp: Stamp) -> dict:
     return process_chunk([(csv, stamp)], processed)[0]
 
 
-def process_chunk(items: list[tuple[Path, Stamp]], processed: Path) -> list[dict]:
+def process_chunk(items: list[tuple[Path, Stamp]], processed: Path, ingested: dict[str, dict] | None = None
+                  ) -> list[dict]:
     """All stages on a few recordings in one worker task; never raises: failures are returned per recording.
 
     Every stage but the ``.rrd`` verification runs recording by recording;
@@ -183,7 +187,7 @@ def process_chunk(items: list[tuple[Path, Stamp]], processed: Path) -> list[dict
         usage = resource.getrusage(resource.RUSAGE_CHILDREN)
         return usage.ru_utime + usage.ru_stime
 
-    done = [_all_stages(csv, processed) for csv, _stamp in items]
+    done = [_all_stages(csv, processed, (ingested or {}).get(csv.name)) for csv, _stamp in items]
     rrds = [RunPaths(processed / name).rrd for out, _old in done if out["status"] == "ok" for name in out["runs"]]
     t0, c0 = time.perf_counter(), child_cpu()
     bad = verify_rrds(rrds)
@@ -212,8 +216,31 @@ def process_chunk(items: list[tuple[Path, Stamp]], processed: Path) -> list[dict
     return results
 
 
-def _all_stages(csv: Path, processed: Path) -> tuple[dict, list[str]]:
-    """Ingest, derive and validate one recording (``.rrd`` not yet verified); the result and its previous runs."""
+def ingest_ahead(csv: Path, processed: Path) -> dict:
+    """Ingest one recording in ``pdr run``'s own process while the workers start; never raises.
+
+    Returns what ``process_chunk`` needs to skip the ingest (``runs``), its
+    wall and CPU time, or ``error`` (the recording then goes to no worker).
+    """
+    from pipeline.ingest.stage import ingest_recording
+
+    t0, c0 = time.perf_counter(), time.process_time()
+    out: dict = {"runs": [], "error": None}
+    try:
+        out["runs"] = [p.name for p in ingest_recording(csv, processed).runs]
+    except PdrError as err:
+        out["error"] = f"ingest: {err}"
+    except Exception as err:  # a bug in pdr: still never stops the other recordings
+        out["error"] = f"ingest: internal error {type(err).__name__}: {err}"
+    out.update(wall_s=time.perf_counter() - t0, cpu_s=time.process_time() - c0)
+    return out
+
+
+def _all_stages(csv: Path, processed: Path, ingested: dict | None = None) -> tuple[dict, list[str]]:
+    """Ingest, derive and validate one recording (``.rrd`` not yet verified); the result and its previous runs.
+
+    ``ingested``: ``ingest_ahead``'s result when the recording was ingested before it got here.
+    """
     from pipeline.derive.stage import derive_and_write
     from pipeline.ingest.stage import ingest_recording
     from pipeline.validate.stage import validate_run
@@ -226,12 +253,17 @@ def _all_stages(csv: Path, processed: Path) -> tuple[dict, list[str]]:
     old = previous_runs(processed, csv)
     stage = "ingest"
     try:
-        t0 = time.perf_counter()
-        result = ingest_recording(csv, processed)
-        timing["ingest"] = time.perf_counter() - t0
-        cpu["ingest"] = time.process_time() - cpu0
-        out["runs"] = [p.name for p in result.runs]
-        for paths in result.runs:
+        if ingested is None:
+            t0 = time.perf_counter()
+            runs = ingest_recording(csv, processed).runs
+            timing["ingest"] = time.perf_counter() - t0
+            cpu["ingest"] = time.process_time() - cpu0
+        else:
+            runs = [RunPaths(processed / name) for name in ingested["runs"]]
+            timing["ingest"], cpu["ingest"] = ingested["wall_s"], ingested["cpu_s"]
+            cpu0 -= ingested["cpu_s"]
+        out["runs"] = [p.name for p in runs]
+        for paths in runs:
             stage = "derive"
             t0, c0 = time.perf_counter(), time.process_time()
             tables = derive_and_write(paths)
@@ -317,13 +349,54 @@ def _isolated(csv: Path, processed: Path, stamp: Stamp) -> dict:
                     "error": f"the worker process died while processing it ({err})", "timing_s": {}}
 
 
-CHUNK_MAX = 4      # recordings per worker task: one verify call for 4 files, at most ~0.3 s of tail imbalance
+CHUNK_MAX = 4      # recordings per worker task: one verify call for 4 files instead of 4 starts of the tool
 
 
 def chunks(todo: list, jobs: int) -> list[list]:
-    """Consecutive slices of ``todo``: up to ``CHUNK_MAX`` each, small enough that every worker gets several."""
+    """Consecutive slices of ``todo``: up to ``CHUNK_MAX`` each, small enough that every worker gets several.
+
+    The last ``2 * jobs`` slices hold half as many, so the workers finish
+    within about one recording of each other instead of one whole chunk.
+    """
     size = max(1, min(CHUNK_MAX, len(todo) // (4 * jobs)))
-    return [todo[i:i + size] for i in range(0, len(todo), size)]
+    tail_size = max(1, size // 2)
+    tail = min(len(todo), 2 * jobs * tail_size) if size > 1 else 0
+    head = (len(todo) - tail) // size * size
+    return ([todo[i:i + size] for i in range(0, head, size)]
+            + [todo[i:i + tail_size] for i in range(head, len(todo), tail_size)])
+
+
+def _start_pool(pool) -> None:
+    """Start the pool's forkserver and first worker (returns when a worker has run a task)."""
+    from concurrent.futures.process import BrokenProcessPool
+
+    try:
+        pool.submit(os.getpid).result()
+    except BrokenProcessPool:      # the submissions that follow see it and retry each recording alone
+        pass
+
+
+def _ingest_ahead(todo: list[tuple[Path, Stamp]], processed: Path, starting: threading.Thread) -> dict[str, dict]:
+    """Use the core that is idle while the forkserver imports: ingest recordings from the end of the list.
+
+    Stops as soon as the pool has started (``starting`` finished); the workers
+    then skip the ingest of what was done here.  The summary's pandas import
+    comes first (the ingest needs it too).
+    """
+    importlib.import_module("pipeline.validate.summary")
+    ahead: dict[str, dict] = {}
+    for csv, _stamp in reversed(todo):
+        if not starting.is_alive():
+            break
+        ahead[csv.name] = ingest_ahead(csv, processed)
+    return ahead
+
+
+def _failed_ahead(csv: Path, processed: Path, info: dict) -> dict:
+    """The result of a recording whose ingest failed in ``_ingest_ahead`` (it goes to no worker)."""
+    _withdraw(processed, sorted(set(previous_runs(processed, csv)) | set(info["runs"])))
+    return {"recording": csv.name, "status": "failed", "runs": info["runs"], "error": info["error"],
+            "timing_s": {"ingest": info["wall_s"]}, "cpu_s": info["cpu_s"], "cpu_stage_s": {"ingest": info["cpu_s"]}}
 
 
 def _execute(todo: list[tuple[Path, Stamp]], processed: Path, jobs: int, show_progress: bool) -> list[dict]:
@@ -344,7 +417,25 @@ def _execute(todo: list[tuple[Path, Stamp]], processed: Path, jobs: int, show_pr
 
         broken: list[tuple[Path, Stamp]] = []
         with _pool(min(jobs, len(todo))) as pool:
-            futures = {pool.submit(process_chunk, chunk, processed): chunk for chunk in chunks(todo, jobs)}
+            # The first submit blocks until the forkserver has imported everything (~2 s on one core):
+            # it waits in a thread while this one ingests.
+            starting = threading.Thread(target=_start_pool, args=(pool,), daemon=True)
+            starting.start()
+            ahead = _ingest_ahead(todo, processed, starting)
+            starting.join()
+            failed = {csv.name for csv, _stamp in todo if ahead.get(csv.name, {}).get("error")}
+            for csv, _stamp in todo:
+                if csv.name in failed:
+                    results.append(_failed_ahead(csv, processed, ahead.pop(csv.name)))
+                    bar.advance(task)
+            todo = [item for item in todo if item[0].name not in failed]
+            futures = {}
+            for chunk in chunks(todo, jobs):
+                try:
+                    futures[pool.submit(process_chunk, chunk, processed,
+                                        {c.name: ahead[c.name] for c, _s in chunk if c.name in ahead})] = chunk
+                except BrokenProcessPool:           # the pool died already (while starting): retried below
+                    broken.extend(chunk)
             for fut in as_completed(futures):
                 chunk = futures[fut]
                 try:
@@ -386,8 +477,6 @@ def run_pipeline(raw: Path, processed: Path, *, jobs: int = 2, force: bool = Fal
             else:
                 todo.append((csv, stamp))
         if todo:
-            # the summary below needs pandas: import it while the workers start (a core is idle then)
-            threading.Thread(target=importlib.import_module, args=("pipeline.validate.summary",), daemon=True).start()
             report.ran = _execute(todo, processed, jobs, show_progress)
         report.removed = prune_orphans(processed, raw, recordings)
         summary_csv = processed / "summary.csv"

@@ -158,3 +158,15 @@ def test_tables_handed_over_by_derive_validate_as_the_files_do(recordings, tmp_p
     validation = json.loads(paths.validation.read_text())
     handed = panel_tables({"phases": tables.phases, "overshoot": tables.overshoot})
     assert stats_markdown("clean", validation, handed) == stats_markdown("clean", validation, derived_tables(paths))
+
+
+def test_chunks_cover_every_recording_once_and_shrink_at_the_end():
+    from pipeline.run import CHUNK_MAX, chunks
+
+    for n in range(0, 90):
+        for jobs in (1, 2, 3):
+            parts = chunks(list(range(n)), jobs)
+            assert [x for part in parts for x in part] == list(range(n)) and all(parts)
+            assert max(map(len, parts), default=0) <= CHUNK_MAX
+    sizes = [len(p) for p in chunks(list(range(100)), 2)]
+    assert sizes[0] == CHUNK_MAX and sizes[-4:] == [CHUNK_MAX // 2] * 4
