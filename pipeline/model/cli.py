@@ -74,6 +74,9 @@ def format_report(rep: dict) -> str:
         f"theta max/min   {rep['theta_max']:+.4f} / {rep['theta_min']:+.4f} rad",
         f"energy (paper)  {rep['energy_paper_j']:.3f} J",
     ]
-    for key in sorted(k for k in rep if k.endswith("_j") and k != "energy_paper_j"):
+    from pipeline.derive.energy import ENERGY_KEYS
+
+    # the balance in its physical order: what went in, where it went, what is stored, what is left
+    for key in ENERGY_KEYS[1:]:
         lines.append(f"  {key[:-2].replace('_', ' '):<24}{rep[key]:+.4f} J")
     return "\n".join(lines)
