@@ -82,11 +82,7 @@ class Measurement:
         return self.config.plant_spec(tuple(effects))
 
     def x0(self, spec: PlantSpec) -> tuple[float, float, float]:
-        """[I, w, delta] at the first sample.  With the motor off there (dir = 0, the sketch not
-        yet driving) the pinion is at rest and the current is zero, whatever the sensor reads;
-        otherwise as validation takes it (the current read through the model's sensor offset)."""
-        if self.dir[0] == 0:
-            return (0.0, 0.0, float(self.theta[0]) * spec.params.R)
+        """[I, w, delta] at the first sample, by validation's rule (so the MSEs agree)."""
         return initial_state(self.kinematics, spec)
 
     def simulate_ways(self, spec: PlantSpec, dir_log: np.ndarray) -> dict[str, SimResult]:
