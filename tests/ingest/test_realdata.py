@@ -11,7 +11,15 @@ from pipeline.errors import IngestError
 from pipeline.ingest.stage import ingest_recording
 from tests.ingest.helpers import config_from_toml
 
-REAL = Path("/work/shared/realdata")
+def _realdata() -> Path:
+    """shared/ sits beside the checkout (CI clones main next to it); /work/shared on a developer's machine."""
+    for root in (Path(__file__).resolve().parents[2].parent / "shared", Path("/work/shared")):
+        if (root / "realdata").is_dir():
+            return root / "realdata"
+    raise FileNotFoundError("shared/realdata not found beside the checkout nor at /work/shared")
+
+
+REAL = _realdata()
 AKAFAEL = REAL / "akafael__discrete-servo-control"
 MOUSE = REAL / "opatiny__micromouse"
 AKAFAEL_COLUMNS = '[columns]\nt_ms = "time(ms)"\ncounts = "enconder(steps)"\nadc = ""\ndir = ""\n'
