@@ -1,8 +1,8 @@
 """Virtual rig speed: the reference plant and one synthetic recording.
 
 Baseline measured in the same run: the naive way to integrate a sampled
-controller with scipy -- one ``solve_ivp`` call per control period (same
-method and tolerances).  The reference plant instead integrates between the
+controller with scipy -- one ``solve_ivp`` call per control period
+(``tests.model.ivp_reference``, tolerances 1e-10/1e-12).  The reference plant instead integrates between the
 instants where the input or a decision can change, with dense output.
 Run: python -m benchmarks.bench_rig
 """
@@ -12,14 +12,14 @@ from __future__ import annotations
 import time
 
 import numpy as np
-from scipy.integrate import solve_ivp
 
 from pipeline.config import default_config
 from pipeline.model.effects import Backlash, CoulombFriction, CurrentSensorOffset, LoopDelay, RackInertia
-from pipeline.model.simulate import next_dir, sample_times, simulate
+from pipeline.model.simulate import sample_times, simulate
 from pipeline.rig.plant import simulate_reference
 from pipeline.rig.recording import RigSetup, make_recording
 from pipeline.rig.serial import Artefacts
+from tests.model.ivp_reference import simulate_ivp   # the one per-period baseline (bench_model uses it too)
 
 
 def best_of(fn, repeat: int = 3) -> float:
@@ -31,27 +31,10 @@ def best_of(fn, repeat: int = 3) -> float:
     return min(times)
 
 
-def per_period_solve_ivp(spec, t: np.ndarray) -> np.ndarray:
-    """Baseline: one solve_ivp call per control period, linear model, sampled guard."""
-    A, B = spec.params.state_matrices()
-    x = np.zeros(3)
-    d = 1
-    out = np.empty((len(t), 3))
-    for k in range(len(t)):
-        out[k] = x
-        d = next_dir(d, x[2] / spec.params.R, spec.guard_rad)
-        if k + 1 < len(t):
-            u = d * spec.v_drive
-            sol = solve_ivp(lambda _t, y: A @ y + B * u, (t[k], t[k + 1]), x, method="DOP853",
-                            rtol=1e-10, atol=1e-12)
-            x = sol.y[:, -1]
-    return out
-
-
 def main() -> None:
     spec = default_config().plant_spec()
     t = sample_times(24.95, 0.05)
-    base = best_of(lambda: per_period_solve_ivp(spec, t), repeat=2)
+    base = best_of(lambda: simulate_ivp(spec, t), repeat=2)
     ref = best_of(lambda: simulate_reference(spec, t))
     fast = best_of(lambda: simulate(spec, t))
     print(f"500 samples, linear model, sampled guard:")
