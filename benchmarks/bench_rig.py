@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import time
 
-import numpy as np
 
 from pipeline.config import default_config
 from pipeline.model.effects import Backlash, CoulombFriction, CurrentSensorOffset, LoopDelay, RackInertia
