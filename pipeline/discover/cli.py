@@ -38,6 +38,9 @@ def discover(
     from pipeline.runs import resolve_runs
 
     item = Path(recording)
+    if item.suffix.lower() == ".csv" and not item.is_file():
+        raise PdrError("no such raw recording: expected a CSV file, a processed run folder or a run name",
+                       path=recording)
     with tempfile.TemporaryDirectory(prefix="pdr-discover-") as tmp:
         if item.suffix.lower() == ".csv" and item.is_file():
             from pipeline.derive.stage import derive_run
