@@ -107,3 +107,16 @@ def test_threaded_parquet_write_gives_the_pure_cores_tables_and_report(tmp_path)
     assert json.dumps(report2, sort_keys=True) == json.dumps(report, sort_keys=True)
     assert [r.report for r in runs2] == [r.report for r in runs]
     assert pq.read_table(paths[0].signals).to_pandas().equals(runs[0].signals)
+
+
+@pytest.mark.parametrize("body", [
+    b"0,0,511,1\n\n50,9,516,1\n",            # blank line
+    b"0,0,511,1\r\n\r\n50,9,516,1\r\n",      # blank CRLF line
+    b"0,0,511,1\r50,9,516,1\n",              # stray carriage return inside the data
+])
+def test_plain_path_hands_blank_and_split_lines_to_the_general_path(body):
+    from pipeline.config import ColumnsConfig
+    from pipeline.ingest.plain import parse_plain
+
+    assert parse_plain(b"t_ms,counts,adc,dir\n" + body, ColumnsConfig(), "x.csv") is None
+    assert parse_plain(b"t_ms,counts,adc,dir\n0,0,511,1\n50,9,516,1\n", ColumnsConfig(), "x.csv") is not None
