@@ -65,6 +65,10 @@ def test_run_validates_every_recording_and_isolates_a_bad_one(recordings, tmp_pa
     assert replay["theta"]["mse"] < 5e-6          # 100 clean recordings: median 9e-7, max 3.4e-6
     assert 0.7 * CURRENT_FLOOR_A2 < replay["current"]["mse"] < 1.4 * CURRENT_FLOOR_A2
     assert v["agreement"]["same_switches"] is True
+    # One energy code path: validation's "measured" energy is derive's summary figure, to the bit.
+    derived = json.loads(run_paths(processed, "clean").summary.read_text())["energy"]
+    assert v["measured"]["energy"]["energy_paper_j"] == derived["energy_paper_j"]
+    assert v["measured"]["energy"]["input_energy_j"] == derived["input_energy_j"]
     verdicts = {x.run: x for x in gate(processed, load_thresholds(SHIPPED_THRESHOLDS))}
     assert verdicts["clean"].passed
     assert not verdicts["vdrop"].passed

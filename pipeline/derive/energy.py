@@ -66,6 +66,19 @@ def applied_voltage(t: np.ndarray, dirs: np.ndarray, v_drive: float, Td: float =
     return out
 
 
+def run_energy(t: np.ndarray, current: np.ndarray, omega: np.ndarray, theta: np.ndarray,
+               dirs: np.ndarray, spec: PlantSpec) -> dict[str, float]:
+    """The energy figures of one run, measured or simulated, from its commands: the one entry point.
+
+    The derive stage (measured), the validation stage (measured and both simulations) and
+    ``pdr simulate`` all call this, so "experiment vs simulation" compares like with like:
+    the voltage the motor sees (``dirs`` delayed by ``spec.Td``, after the driver drop) and
+    the supply's V_RMS for the paper's estimate.
+    """
+    u = applied_voltage(t, dirs, spec.v_drive, spec.Td)
+    return energy_terms(t, current, omega, theta, u, spec, v_rms=spec.v_rms, period_s=spec.period_s)
+
+
 def dead_zone(theta: np.ndarray, gap: float) -> np.ndarray:
     """dz(theta): the angle the springs feel through a backlash of total width ``gap`` centred on 0."""
     theta = np.asarray(theta, dtype=float)

@@ -18,7 +18,7 @@ import pandas as pd
 
 from pipeline.config import RigConfig
 from pipeline.derive.cycles import cycle_summary, cycle_table
-from pipeline.derive.energy import applied_voltage, energy_terms, paper_energy_j
+from pipeline.derive.energy import paper_energy_j, run_energy
 from pipeline.derive.overshoot import overshoot_summary, overshoot_table
 from pipeline.derive.phases import MODE_OF_DIR, infer_dir, phase_bounds, phase_table, reversal_indices
 from pipeline.derive.stats import describe
@@ -124,10 +124,8 @@ def derive_tables(signals: pd.DataFrame, cfg: RigConfig) -> DerivedTables:
         energy = None
         not_computed["energy"] = "no current column: energy not computed"
     else:
-        u = applied_voltage(t, dirs, spec.v_drive, spec.Td)
-        # V_RMS is the supply's 6 V (Sec. IV-C: energy drawn), as in ``pdr simulate``; u is what the motor sees
-        energy = energy_terms(t, smooth, omega, theta, u, spec, v_rms=cfg.drive.v_in, period_s=spec.period_s)
-        energy["energy_paper_logged_current_j"] = paper_energy_j(current, cfg.drive.v_in, spec.period_s)
+        energy = run_energy(t, smooth, omega, theta, dirs, spec)
+        energy["energy_paper_logged_current_j"] = paper_energy_j(current, spec.v_rms, spec.period_s)
 
     modes = [MODE_OF_DIR[int(d)] for d in phases["dir"]]
     summary = {

@@ -44,12 +44,12 @@ def simulation_report(cfg, duration: float, guard: str = "sampled") -> dict:
     """What ``pdr simulate`` prints: closed loop from rest in q1 with the rig's model (a pure function)."""
     import numpy as np
 
-    from pipeline.derive.energy import energy_terms
+    from pipeline.derive.energy import run_energy
     from pipeline.model.simulate import simulate as run
 
     spec = cfg.plant_spec()
     r = run(spec, duration=duration, guard=guard)
-    energy = energy_terms(r.t, r.current, r.omega, r.theta, r.u, spec, cfg.drive.v_in, cfg.controller.period_s)
+    energy = run_energy(r.t, r.current, r.omega, r.theta, r.dir, spec)
     return {
         "duration_s": round(float(r.t[-1]), 9),
         "samples": int(len(r.t)),

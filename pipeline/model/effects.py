@@ -35,6 +35,12 @@ class PlantSpec:
     gap: float = 0.0        # rad      total backlash width centred on theta = 0 (0: none)
     Td: float = 0.0         # s        loop delay from deciding sample to motor (0: none)
     I0: float = 0.0         # A        current sensor offset added to the measured current
+    v_supply: float | None = None  # V  supply voltage before any driver drop (the paper's V_RMS); None: v_drive
+
+    @property
+    def v_rms(self) -> float:
+        """The voltage the paper's energy estimate multiplies by: the supply's, not what reaches the motor."""
+        return self.v_drive if self.v_supply is None else self.v_supply
 
     @property
     def is_linear(self) -> bool:
@@ -206,7 +212,7 @@ def make_effect(name: str, parameters: dict, *, where: str = "effects") -> Effec
 def build_spec(params: ModelParams, controller: ControllerParams, drive: DriveParams,
                effects: Iterable[Effect] = ()) -> PlantSpec:
     """Fold a list of effects into the plant the simulators run."""
-    spec = PlantSpec(params=params, v_drive=drive.v_in, guard_rad=controller.guard_rad,
+    spec = PlantSpec(params=params, v_drive=drive.v_in, v_supply=drive.v_in, guard_rad=controller.guard_rad,
                      period_s=controller.period_s)
     for effect in effects:
         spec = effect.apply(spec)

@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from pipeline.derive.energy import energy_terms
+from pipeline.derive.energy import run_energy
 from pipeline.model.effects import PlantSpec
 from pipeline.model.simulate import SimResult, simulate
 from pipeline.validate.metrics import signal_errors
@@ -129,10 +129,6 @@ def _difference(sim: dict[str, float], meas: dict[str, float], keys: tuple[str, 
     return {k: float(sim[k] - meas[k]) for k in keys}
 
 
-def _energy(t, current, omega, theta, u, spec: PlantSpec) -> dict[str, float]:
-    return energy_terms(t, current, omega, theta, u, spec, v_rms=spec.v_drive, period_s=spec.period_s)
-
-
 def compare(kin: pd.DataFrame, spec: PlantSpec, sims: dict[str, SimResult] | None = None) -> dict:
     """Everything ``validation.json`` holds about one run, for both ways."""
     sims = simulate_both(spec, kin) if sims is None else sims
@@ -145,13 +141,15 @@ def compare(kin: pd.DataFrame, spec: PlantSpec, sims: dict[str, SimResult] | Non
     meas_energy = None
     if has_current:
         omega = np.nan_to_num(kin["omega_rad_s"].to_numpy(dtype=float, na_value=np.nan))
-        meas_energy = _energy(t, kin["current_a"].to_numpy(dtype=float), omega, theta,
-                              d.astype(float) * spec.v_drive, spec)
+        # the derive stage's current (smoothed within phases when it made one): the same
+        # inputs and code as summary.json's energy, so validation's "measured" is derive's figure
+        col = "current_smooth_a" if "current_smooth_a" in kin.columns else "current_a"
+        meas_energy = run_energy(t, kin[col].to_numpy(dtype=float), omega, theta, d, spec)
     out: dict = {"measured": {"oscillation": meas_osc, "energy": meas_energy}}
     osc_keys = ("period_s", "amplitude_rad", "overshoot_rad")
     for way, sim in sims.items():
         osc = oscillation_stats(sim.t, sim.theta, sim.dir, guard)
-        energy = _energy(sim.t, sim.current, sim.omega, sim.theta, sim.u, spec)
+        energy = run_energy(sim.t, sim.current, sim.omega, sim.theta, sim.dir, spec)
         block = {
             "signals": signal_errors(kin, sim),
             "switches": switch_differences(t, d, sim.dir),

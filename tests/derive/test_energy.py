@@ -76,3 +76,25 @@ def test_balance_closes_with_a_loop_delay():
     u = applied_voltage(r.t, r.dir, spec.v_drive, spec.Td)
     e = energy_terms(r.t, r.current, r.omega, r.theta, u, spec, 6.0, 0.05)
     assert abs(e["balance_residual_j"]) < 0.01 * e["input_energy_j"]
+
+
+def test_run_energy_uses_the_supply_for_v_rms_and_the_delayed_command():
+    """With a driver drop the paper's estimate still uses the supply's V_RMS; a loop delay shifts u."""
+    import numpy as np
+
+    from pipeline.config import default_config
+    from pipeline.derive.energy import applied_voltage, energy_terms, run_energy
+    from pipeline.model.effects import make_effect
+
+    spec = default_config().plant_spec((make_effect("driver_voltage_drop", {"Vd": 1.0}),
+                                        make_effect("loop_delay", {"Td": 0.02})))
+    assert spec.v_drive == 5.0 and spec.v_rms == 6.0
+    t = np.arange(40) * 0.05
+    dirs = np.where(t < 1.0, 1, -1).astype(np.int8)
+    current = np.sin(t)
+    omega, theta = np.cos(t), np.sin(t)
+    got = run_energy(t, current, omega, theta, dirs, spec)
+    u = applied_voltage(t, dirs, 5.0, 0.02)
+    assert u[19] == pytest.approx(5.0) and u[20] == pytest.approx(5.0 * (0.02 - 0.03) / 0.05)   # reversal decided at t = 1.0 s acts at 1.02 s
+    assert got == energy_terms(t, current, omega, theta, u, spec, v_rms=6.0, period_s=spec.period_s)
+    assert got["energy_paper_j"] == pytest.approx(6.0 * 0.05 * np.sum(np.abs(current[:-1] + current[1:]) / 2))
