@@ -166,19 +166,9 @@ def _run_linear(spec: PlantSpec, plan: _Plan, x: np.ndarray) -> tuple[np.ndarray
     pending: deque[tuple[float, float]] = deque()   # (time the motor sees it, voltage)
     u_m = 0.0                                        # motor voltage; off until the first command
     d = last = 0
-    own = plan.closed_loop
     for k in range(n):
         out.append((I, w, dl))
-        if own and k > plan.start:                   # next_dir, inlined: this loop is the hot path
-            th = dl / R
-            if d >= 0 and th >= guard:
-                d = -1
-            elif d <= 0 and th <= -guard:
-                d = 1
-            elif d == 0:
-                d = 1
-        else:
-            d = plan.decide(k, d, dl / R, guard)
+        d = plan.decide(k, d, dl / R, guard)
         dirs.append(d)
         if d != last or k == 0:
             pending.append((t[k] + Td, d * V))
@@ -254,22 +244,12 @@ def _run_events(spec: PlantSpec, plan: _Plan, x: np.ndarray, *, continuous: bool
     pending: deque[tuple[float, float]] = deque()
     u_m = 0.0
     d = last = 0
-    own = plan.closed_loop
     by_regime: dict[tuple, dict[float, tuple]] = {}    # (z, s, u, armed) -> step length -> quick entry
     last_regime = None
     by_length: dict[float, tuple] = {}
     for k in range(n):
         out.append(x)
-        if own and k > plan.start:                   # next_dir, inlined
-            th = x[2] / R
-            if d >= 0 and th >= guard:
-                d = -1
-            elif d <= 0 and th <= -guard:
-                d = 1
-            elif d == 0:
-                d = 1
-        else:
-            d = plan.decide(k, d, x[2] / R, guard)
+        d = plan.decide(k, d, x[2] / R, guard)
         dirs.append(d)
         if d != last or k == 0:
             pending.append((t[k] + Td, d * V))
