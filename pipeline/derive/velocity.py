@@ -73,11 +73,6 @@ def _fit_windows(t: np.ndarray, y: np.ndarray, rows: np.ndarray, idx: np.ndarray
     return np.linalg.solve(XtX, Xty[:, :, None])[:, :, 0]
 
 
-ESTIMATORS = {
-    "backward": backward_difference,
-    "savgol": savgol_velocity,
-}
-
 
 def smooth_by_phase(t: np.ndarray, y: np.ndarray, starts: np.ndarray, window: int, order: int) -> np.ndarray:
     """Local polynomial smoothing that never fits across a command change.

@@ -26,15 +26,6 @@ def step_key(h: float) -> float:
     return round(h, KEY_DECIMALS)
 
 
-def step_matrices(A: np.ndarray, B: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
-    """Phi(h), Gamma(h) for a unit input, from expm([[A, B], [0, 0]] h)."""
-    M = np.zeros((4, 4))
-    M[:3, :3] = A * h
-    M[:3, 3] = B * h
-    E = expm_batch(M)
-    return E[:3, :3], E[:3, 3]
-
-
 def phi_gamma(A: tuple[tuple[float, ...], ...], B: tuple[float, ...], h: float) -> tuple[float, ...]:
     """(Phi row-major, Gamma) for one step, in plain floats: the same Taylor/squaring as ``expm_batch``.
 

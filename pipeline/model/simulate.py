@@ -304,15 +304,3 @@ def _run_events(spec: PlantSpec, plan: _Plan, x: np.ndarray, *, continuous: bool
             elif stop == t_next:
                 break
     return np.array(out), np.array(dirs, dtype=np.int8)
-
-
-def paper_energy(t: np.ndarray, current: np.ndarray, v_rms: float = 6.0, period: float | None = None) -> float:
-    """The paper's estimate (Sec. IV-C): V_RMS * T_s * sum_k |y[k-1] + y[k]| / 2.
-
-    ``period`` defaults to the median sample spacing; the formula itself lives in
-    ``pipeline.derive.energy.paper_energy_j`` (one source of truth).
-    """
-    from pipeline.derive.energy import paper_energy_j
-
-    ts = period if period is not None else float(np.median(np.diff(t)))
-    return paper_energy_j(current, v_rms, ts)

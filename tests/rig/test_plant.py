@@ -10,7 +10,8 @@ import pytest
 from pipeline.config import default_config
 from pipeline.model.effects import Backlash, CoulombFriction, LoopDelay
 from pipeline.model.params import ModelParams
-from pipeline.model.simulate import next_dir, paper_energy, sample_times
+from pipeline.derive.energy import paper_energy_j
+from pipeline.model.simulate import next_dir, sample_times
 from pipeline.rig.plant import dead_zone, run_reference, simulate_reference
 
 BASE = default_config()
@@ -31,7 +32,7 @@ def test_paper_simulation_switches_energy_and_overshoot(paper_run):
     r = paper_run.result
     assert len(r.t) == 500
     assert 12 <= len(r.switch_times) <= 14                       # MODEL.md: about 13 switches
-    energy = paper_energy(r.t, r.current)
+    energy = paper_energy_j(r.current, 6.0, 0.05)
     assert abs(energy - 16.9) / 16.9 < 0.02                      # MODEL.md: about 16.9 J
     assert abs(energy - 16.496) / 16.496 < 0.03                  # the paper's 16.496 J, issue 2's bound
     assert r.theta.max() > GUARD and r.theta.min() < -GUARD      # reaches and overshoots both guards
