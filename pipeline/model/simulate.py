@@ -96,6 +96,32 @@ class _Plan:
         return next_dir(d_prev, theta, guard)
 
 
+class _Controller:
+    """The sketch's decision at each sample and the commands on their way to the motor.
+
+    A command decided at sample k reaches the motor at t_k + Td (``loop_delay``);
+    ``pending`` holds (arrival time, voltage) for the integrators to apply.
+    """
+
+    def __init__(self, plan: _Plan, t: list[float], guard: float, v_drive: float, Td: float) -> None:
+        self.plan, self.t, self.guard, self.v_drive, self.Td = plan, t, guard, v_drive, Td
+        self.pending: deque[tuple[float, float]] = deque()
+        self.d = 0
+
+    def step(self, k: int, theta: float) -> int:
+        d = self.plan.decide(k, self.d, theta, self.guard)
+        if d != self.d or k == 0:
+            self.pending.append((self.t[k] + self.Td, d * self.v_drive))
+        self.d = d
+        return d
+
+    def reverse_at(self, time: float) -> int:
+        """The continuous-guard variant: reverse the instant theta reaches the guard, between samples."""
+        self.d = -self.d
+        self.pending.append((time + self.Td, self.d * self.v_drive))
+        return self.d
+
+
 def _plan(spec: PlantSpec, t, duration: float, dir0: int, dir_log, closed_loop: bool, guard: str) -> _Plan:
     if guard not in GUARDS:
         raise PdrError(f"unknown guard '{guard}', expected one of {', '.join(GUARDS)}", key="guard")
@@ -163,16 +189,13 @@ def _run_linear(spec: PlantSpec, plan: _Plan, x: np.ndarray) -> tuple[np.ndarray
     I, w, dl = (float(v) for v in x)
     out = []
     dirs = []
-    pending: deque[tuple[float, float]] = deque()   # (time the motor sees it, voltage)
+    controller = _Controller(plan, t, guard, V, Td)
+    pending = controller.pending
     u_m = 0.0                                        # motor voltage; off until the first command
-    d = last = 0
     for k in range(n):
         out.append((I, w, dl))
-        d = plan.decide(k, d, dl / R, guard)
+        d = controller.step(k, dl / R)
         dirs.append(d)
-        if d != last or k == 0:
-            pending.append((t[k] + Td, d * V))
-            last = d
         if k + 1 == n:
             break
         tk, t_next = t[k], t[k + 1]
@@ -241,19 +264,16 @@ def _run_events(spec: PlantSpec, plan: _Plan, x: np.ndarray, *, continuous: bool
     hs = np.round(np.diff(plan.t), KEY_DECIMALS).tolist()
     out = []
     dirs = []
-    pending: deque[tuple[float, float]] = deque()
+    controller = _Controller(plan, t, guard, V, Td)
+    pending = controller.pending
     u_m = 0.0
-    d = last = 0
     by_regime: dict[tuple, dict[float, tuple]] = {}    # (z, s, u, armed) -> step length -> quick entry
     last_regime = None
     by_length: dict[float, tuple] = {}
     for k in range(n):
         out.append(x)
-        d = plan.decide(k, d, x[2] / R, guard)
+        d = controller.step(k, x[2] / R)
         dirs.append(d)
-        if d != last or k == 0:
-            pending.append((t[k] + Td, d * V))
-            last = d
         if k + 1 == n:
             break
         tk, t_next = t[k], t[k + 1]
@@ -299,8 +319,7 @@ def _run_events(spec: PlantSpec, plan: _Plan, x: np.ndarray, *, continuous: bool
             x, tk, hit = plant.advance(x, tk, stop, u_m, armed, guard)
             if hit:
                 # the continuous controller reverses the instant theta reaches the guard
-                d = last = armed = -d
-                pending.append((tk + Td, d * V))
+                d = armed = controller.reverse_at(tk)
             elif stop == t_next:
                 break
     return np.array(out), np.array(dirs, dtype=np.int8)
