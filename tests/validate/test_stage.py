@@ -100,3 +100,32 @@ def test_overview_png_decodes_to_the_rendered_pixels():
     with Image.open(io.BytesIO(png_rgb(rgb))) as im:
         assert im.size == (7, 5) and im.mode == "RGB"
         np.testing.assert_array_equal(np.asarray(im), rgb)
+
+
+def test_overview_title_is_drawn_in_the_top_band_only():
+    """The per-run title (drawn by Pillow over the cached background) changes the top band and nothing else."""
+    import io
+
+    from pipeline.model.simulate import simulate
+    from pipeline.validate.plots import overview_png
+
+    spec = default_config().plant_spec()
+    sim = simulate(spec, duration=5.0)
+    kin = pd.DataFrame({"t_s": sim.t, "theta_rad": sim.theta, "omega_rad_s": sim.omega,
+                        "current_a": sim.current_measured})
+
+    def pixels(title: str) -> np.ndarray:
+        png = overview_png(title, kin, {"closed_loop": sim, "replay": sim}, spec.guard_rad)
+        with Image.open(io.BytesIO(png)) as im:
+            return np.asarray(im.convert("RGB"), dtype=int)
+
+    blank, short, long = pixels(""), pixels("run-a"), pixels("run-b   MSE replay: theta 1.2e-06 rad^2")
+    band = slice(0, 20)
+    np.testing.assert_array_equal(blank[20:], long[20:])           # lines and axes untouched
+    dark_short = (short[band].min(axis=2) < 100).sum()
+    dark_long = (long[band].min(axis=2) < 100).sum()
+    assert (blank[band].min(axis=2) < 100).sum() == 0              # the margin is white without a title
+    assert 0 < dark_short < dark_long                              # ink grows with the text
+    cols = np.flatnonzero((long[band].min(axis=2) < 100).any(axis=0))
+    assert abs((cols[0] + cols[-1]) / 2 - blank.shape[1] / 2) < 10  # centred
+    np.testing.assert_array_equal(pixels("run-a"), short)          # deterministic
