@@ -150,8 +150,12 @@ class TableSchema:
 def _clears(col: Column, arr: pa.ChunkedArray) -> bool:
     """True when ``arr`` surely meets ``col``'s rules (nulls, NaN, range, allowed); False: look closer."""
     import pyarrow.compute as pc
-    if arr.null_count or not len(arr):
-        return not arr.null_count
+    if arr.null_count:
+        if not col.nullable:
+            return False
+        arr = arr.drop_null()           # a nullable column's rules apply to its values
+    if not len(arr):
+        return True
     numeric = pa.types.is_integer(arr.type) or pa.types.is_floating(arr.type)
     if col.type.startswith(("int", "float")) != numeric or (
             col.type.startswith("int") and not pa.types.is_integer(arr.type)):

