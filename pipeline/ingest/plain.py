@@ -2,14 +2,20 @@
 
 Most captures written by a sketch straight to a file (or by ``pdr rig``) are
 plain: one header, rows of numbers, nothing else.  For those the whole parse
-is one multi-threaded Arrow CSV read; anything unusual sends the capture to
+is multi-threaded Arrow CSV reads; anything unusual sends the capture to
 the general path (``pipeline.ingest.parse.parse_capture``), which reads line by
 line (still vectorised) and reports every line it cannot read.
+
+The body can be read in one piece (``parse_plain``) or in blocks of whole lines
+(``plain_blocks`` + ``read_plain_rows``, what ``pipeline.ingest.streamed`` does to
+encode one block while the next is read); both use the same checks and reader.
 """
 
 from __future__ import annotations
 
 import re
+from collections.abc import Iterator
+from dataclasses import dataclass
 
 import numpy as np
 import pyarrow as pa
@@ -23,29 +29,46 @@ from pipeline.ingest.parse import (TIME_RE, TRIM, ParsedFile, Segment, has_contr
 _PLAIN = b"0123456789,-.\r\n"
 
 
-def parse_plain(data: bytes, columns: ColumnsConfig, source: str) -> ParsedFile | None:
-    """Fast path for a clean capture: ``pyarrow.csv.read_csv`` straight into typed columns.
+@dataclass(frozen=True)
+class PlainLayout:
+    """What the first line of a plain capture says: where the rows start and which field is which."""
 
-    Taken only when every byte after the header line is a digit, comma, sign,
-    point or line break, there are no blank lines, every row has the header's
-    field count, every field converts and time never goes back; anything else
-    returns None and the general path (``parse_capture``) reads the file line
-    by line, vectorised, with reasons for the lines it cannot read.
-    """
-    body_start = data.find(b"\n") + 1
-    if body_start == 0 or not data.endswith(b"\n"):
+    header: bool                          # the first line names the columns (else it is a row)
+    body_start: int                       # byte offset of the first row
+    layout: dict[str, int]                # logical column -> field index
+    width: int                            # fields per row
+    notes: list[str]
+
+    @property
+    def first_line(self) -> int:
+        """1-based line number of the first row."""
+        return 2 if self.header else 1
+
+    def segment(self, values: dict[str, np.ndarray], line: np.ndarray) -> ParsedFile:
+        """The parsed file of a plain capture: one segment, nothing quarantined."""
+        n = len(line)
+        seg = Segment(index=0, header_line=1 if self.header else None, layout=self.layout, width=self.width,
+                      data_lines=n, line=line, values=values, notes=list(self.notes))
+        return ParsedFile(segments=[seg], lines_total=n + self.header, blank_lines=0, comment_lines=0,
+                          header_lines=[1] if self.header else [], quarantined=[], notes=[])
+
+
+def plain_layout(data: bytes, columns: ColumnsConfig, source: str) -> PlainLayout | None:
+    """The layout of a capture that may be plain, from its first line; None sends it to the general path."""
+    first_end = data.find(b"\n") + 1
+    if first_end == 0 or not data.endswith(b"\n"):
         return None
     try:
-        first = data[:body_start].decode("utf-8").strip(TRIM)
+        first = data[:first_end].decode("utf-8").strip(TRIM)
     except UnicodeDecodeError:
         return None
     if not first or first.startswith("#") or first.startswith("\ufeff") or has_control_bytes(
-            np.frombuffer(data[:body_start], dtype=np.uint8)):
+            np.frombuffer(data[:first_end], dtype=np.uint8)):
         return None
     names = header_fields(first)
     header = not all(re.fullmatch(TIME_RE, f) for f in names)
-    body = data[body_start:] if header else data
-    if not len(body) or body.translate(None, _PLAIN):
+    body_start = first_end if header else 0
+    if body_start == len(data):
         return None
     if header:
         if columns.t_ms not in names or len(set(names)) != len(names):
@@ -57,12 +80,30 @@ def parse_plain(data: bytes, columns: ColumnsConfig, source: str) -> ParsedFile 
         except IngestError:
             return None                 # the general path looks at every line before refusing
         notes = [f"no header: {len(names)} fields read as {', '.join(layout)}"]
-    width = len(names)
-    col_names = [f"f{j}" for j in range(width)]
+    return PlainLayout(header, body_start, layout, len(names), notes)
+
+
+def plain_blocks(data: bytes, start: int, block_bytes: int) -> Iterator[tuple[int, int]]:
+    """(start, end) byte ranges of about ``block_bytes`` each, every one ending just after a line feed."""
+    while start < len(data):
+        end = data.find(b"\n", min(start + block_bytes, len(data)) - 1) + 1 or len(data)
+        yield start, end
+        start = end
+
+
+def read_plain_rows(rows: bytes, lay: PlainLayout) -> dict[str, np.ndarray] | None:
+    """Whole plain lines -> raw columns (t_raw float64, the others int64); None when any line is not plain.
+
+    Plain: every byte a digit, comma, sign, point or line break, no blank lines,
+    every row has ``lay.width`` fields, every field converts, time never goes back.
+    """
+    if not rows or rows.translate(None, _PLAIN):
+        return None
+    col_names = [f"f{j}" for j in range(lay.width)]
     wanted = {col_names[j]: (logical, pa.float64() if logical == "t_raw" else pa.int64())
-              for logical, j in layout.items()}
+              for logical, j in lay.layout.items()}
     try:
-        table = pcsv.read_csv(pa.py_buffer(body), read_options=pcsv.ReadOptions(column_names=col_names),
+        table = pcsv.read_csv(pa.py_buffer(rows), read_options=pcsv.ReadOptions(column_names=col_names),
                               parse_options=pcsv.ParseOptions(quote_char=False),
                               convert_options=pcsv.ConvertOptions(column_types={k: t for k, (_, t) in wanted.items()},
                                                                   include_columns=list(wanted), strings_can_be_null=False,
@@ -74,10 +115,22 @@ def parse_plain(data: bytes, columns: ColumnsConfig, source: str) -> ParsedFile 
     t = values["t_raw"]
     # one row per line feed: Arrow skips blank lines (also a lone "\r\n") and splits on a stray "\r",
     # so any of those shows as a count mismatch (a numpy count is ~10x cheaper than `b"\n\n" in data`)
-    if n == 0 or n != np.count_nonzero(np.frombuffer(body, dtype=np.uint8) == 10) or (t[1:] < t[:-1]).any():
+    if n == 0 or n != np.count_nonzero(np.frombuffer(rows, dtype=np.uint8) == 10) or (t[1:] < t[:-1]).any():
         return None
-    first_line = 2 if header else 1
-    seg = Segment(index=0, header_line=1 if header else None, layout=layout, width=width, data_lines=n,
-                  line=np.arange(first_line, first_line + n, dtype=np.int64), values=values, notes=notes)
-    return ParsedFile(segments=[seg], lines_total=n + (1 if header else 0), blank_lines=0, comment_lines=0,
-                      header_lines=[1] if header else [], quarantined=[], notes=[])
+    return values
+
+
+def parse_plain(data: bytes, columns: ColumnsConfig, source: str) -> ParsedFile | None:
+    """Fast path for a clean capture: ``pyarrow.csv.read_csv`` straight into typed columns.
+
+    Taken only when the first line is a header (or a row) the layout rules accept and
+    ``read_plain_rows`` reads every other line; anything else returns None and the general
+    path (``parse_capture``) reads the file line by line, vectorised, with reasons for the
+    lines it cannot read.
+    """
+    lay = plain_layout(data, columns, source)
+    values = read_plain_rows(data[lay.body_start:], lay) if lay else None
+    if values is None:
+        return None
+    n = len(values["t_raw"])
+    return lay.segment(values, np.arange(lay.first_line, lay.first_line + n, dtype=np.int64))
