@@ -189,7 +189,7 @@ def _fmt(v) -> str:
     return str(v)
 
 
-def stats_markdown(name: str, validation: dict, derived: dict[str, pd.DataFrame] | None = None) -> str:
+def stats_markdown(name: str, validation: dict, derived: dict[str, dict[str, np.ndarray]] | None = None) -> str:
     """The statistics panel: metrics of both ways, oscillation/overshoot, energy, per-phase table."""
     ways = ("closed_loop", "replay")
     lines = [f"# {name}", "", "## Errors (measured - simulated)", "",
@@ -221,21 +221,20 @@ def stats_markdown(name: str, validation: dict, derived: dict[str, pd.DataFrame]
     for title, key in (("Per phase (derive stage)", "phases"), ("Guard overshoot per crossing (derive stage)",
                                                                 "overshoot")):
         table = (derived or {}).get(key)
-        if table is not None and len(table):
+        if table and len(next(iter(table.values()))):
             lines += ["", f"## {title}", "", *_md_table(table)]
     return "\n".join(lines) + "\n"
 
 
-def _md_table(df: pd.DataFrame) -> list[str]:
-    head = "| " + " | ".join(map(str, df.columns)) + " |"
-    rule = "|" + "---|" * len(df.columns)
-    body = ["| " + " | ".join(_fmt(v.item() if hasattr(v, "item") else v) for v in row) + " |"
-            for row in df.itertuples(index=False)]
+def _md_table(columns: dict[str, np.ndarray]) -> list[str]:
+    head = "| " + " | ".join(map(str, columns)) + " |"
+    rule = "|" + "---|" * len(columns)
+    body = ["| " + " | ".join(_fmt(v) for v in row) + " |" for row in zip(*(a.tolist() for a in columns.values()))]
     return [head, rule, *body]
 
 
 def log_run(rec, name: str, kin: pd.DataFrame, sims: dict[str, SimResult], validation: dict,
-            guard: float, derived: dict[str, pd.DataFrame] | None = None) -> None:
+            guard: float, derived: dict[str, dict[str, np.ndarray]] | None = None) -> None:
     """Log one run into an open recording stream (no file handling here)."""
     import rerun as rr
 
@@ -321,7 +320,7 @@ def verify_rrds(paths: list[Path]) -> dict[Path, str]:
 
 
 def write_rrd(target: Path, name: str, kin: pd.DataFrame, sims: dict[str, SimResult], validation: dict,
-              guard: float, derived: dict[str, pd.DataFrame] | None = None, verify: bool = True) -> None:
+              guard: float, derived: dict[str, dict[str, np.ndarray]] | None = None, verify: bool = True) -> None:
     """Save to a temporary file beside ``target``, close the stream, verify, rename."""
     import rerun as rr
 
