@@ -1,14 +1,17 @@
-"""Exact discretisation of the linear plant x' = A x + B u (eqs. 2, 4/8, 5).
+"""Exact discretisation of the linear plant x' = A x + B u (eqs. 2, 4/8, 5), compiled (numba).
 
 Between two instants the input is held (zero-order hold), so the state moves
 by ``x(t+h) = Phi(h) x + Gamma(h) u`` with ``Phi = e^{A h}`` and
 ``Gamma = int_0^h e^{A s} ds B``, both read off one matrix exponential of the
 augmented system ``[[A, B], [0, 0]] h`` (Van Loan).  The sample spacing of a
-recording jitters between a couple of values (50/51 ms), so a per-length cache
-turns a whole recording into a few exponentials and 500 small matrix-vector
-products.  A motor-voltage change at ``a`` inside a step adds
-``Gamma(h - a) * du`` (superposition of a step input), which is how the loop
-delay ``Td`` is handled without losing exactness.
+recording jitters between a couple of values (50/51 ms), so a whole recording
+needs a few exponentials (one per distinct rounded length, ``step_lengths``)
+and then 500 small matrix-vector products.  A motor-voltage change at ``a``
+inside a step adds ``Gamma(h - a) * du`` (superposition of a step input), which
+is how the loop delay ``Td`` is handled without losing exactness.
+
+These are plain-float loops compiled with numba: at 3x3, numpy's per-call
+overhead would cost more than the arithmetic, and CPython ~1 us per operation.
 """
 
 from __future__ import annotations
@@ -16,31 +19,37 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import njit
 
 # Lengths closer than this share a cache entry: millis() spacing differences carry
 # ~1e-15 s of float noise, far below any physical effect.
 KEY_DECIMALS = 12
 
 
+@njit(cache=True)
 def step_key(h: float) -> float:
+    """``h`` rounded to KEY_DECIMALS: the length the step matrices are computed for."""
     return round(h, KEY_DECIMALS)
 
 
-def phi_gamma(A: tuple[tuple[float, ...], ...], B: tuple[float, ...], h: float) -> tuple[float, ...]:
-    """(Phi row-major, Gamma) for one step, in plain floats: the same Taylor/squaring as ``expm_batch``.
+@njit(cache=True)
+def phi_gamma_into(A: np.ndarray, B: np.ndarray, h: float, out: np.ndarray) -> None:
+    """out[:] = (Phi row-major, Gamma) for one step: degree-12 Taylor with scaling and squaring.
 
     The augmented matrix [[A h, B h], [0, 0]] keeps its shape under products,
     so its exponential is carried as (P, g) with [[P, g], [0, 1]]: Horner
     P <- I + X P / j, g <- (X g + b) / j, then squaring (P, g) <- (P P, P g + g).
-    A 3x3 in Python floats beats numpy's per-call overhead ~5x at this size,
-    which is most of a single simulation's set-up.
+    With ||X||_inf <= 0.25 after scaling the truncation error is below 3e-18
+    relative, so this matches ``scipy.linalg.expm`` to rounding.
     """
-    (a0, a1, a2), (a3, a4, a5), (a6, a7, a8) = A
+    a0, a1, a2 = A[0, 0], A[0, 1], A[0, 2]
+    a3, a4, a5 = A[1, 0], A[1, 1], A[1, 2]
+    a6, a7, a8 = A[2, 0], A[2, 1], A[2, 2]
     norm = max(abs(a0) + abs(a1) + abs(a2) + abs(B[0]), abs(a3) + abs(a4) + abs(a5) + abs(B[1]),
                abs(a6) + abs(a7) + abs(a8) + abs(B[2])) * abs(h)
     s = max(0, math.ceil(math.log2(norm / 0.25))) if norm > 0.25 else 0
     hs = h / (2.0 ** s)
-    x0, x1, x2, x3, x4, x5, x6, x7, x8 = (v * hs for v in (a0, a1, a2, a3, a4, a5, a6, a7, a8))
+    x0, x1, x2, x3, x4, x5, x6, x7, x8 = a0 * hs, a1 * hs, a2 * hs, a3 * hs, a4 * hs, a5 * hs, a6 * hs, a7 * hs, a8 * hs
     b0, b1, b2 = B[0] * hs, B[1] * hs, B[2] * hs
     p0, p1, p2, p3, p4, p5, p6, p7, p8 = 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0
     g0 = g1 = g2 = 0.0
@@ -62,84 +71,28 @@ def phi_gamma(A: tuple[tuple[float, ...], ...], B: tuple[float, ...], h: float) 
             p0 * p0 + p1 * p3 + p2 * p6, p0 * p1 + p1 * p4 + p2 * p7, p0 * p2 + p1 * p5 + p2 * p8,
             p3 * p0 + p4 * p3 + p5 * p6, p3 * p1 + p4 * p4 + p5 * p7, p3 * p2 + p4 * p5 + p5 * p8,
             p6 * p0 + p7 * p3 + p8 * p6, p6 * p1 + p7 * p4 + p8 * p7, p6 * p2 + p7 * p5 + p8 * p8)
-    return (p0, p1, p2, p3, p4, p5, p6, p7, p8, g0, g1, g2)
+    out[0], out[1], out[2], out[3], out[4], out[5], out[6], out[7], out[8] = p0, p1, p2, p3, p4, p5, p6, p7, p8
+    out[9], out[10], out[11] = g0, g1, g2
 
 
-class StepCache:
-    """Phi and Gamma per step length as flat Python floats (the fast loop's arithmetic)."""
-
-    def __init__(self, A: np.ndarray, B: np.ndarray) -> None:
-        self.A = tuple(tuple(float(v) for v in row) for row in A)
-        self.B = tuple(float(v) for v in B)
-        self._cache: dict[float, tuple[float, ...]] = {}
-        self.raw: dict[float, tuple[float, ...]] = {}     # exact float -> entry, skips rounding on hits
-
-    def __call__(self, h: float) -> tuple[float, ...]:
-        """(P00, P01, P02, P10, ..., P22, G0, G1, G2) for length ``h``."""
-        hit = self.raw.get(h)
-        if hit is None:
-            key = step_key(h)
-            hit = self._cache.get(key)
-            if hit is None:
-                hit = phi_gamma(self.A, self.B, key)
-                self._cache[key] = hit
-            self.raw[h] = hit
-        return hit
+@njit(cache=True)
+def phi_gamma(A: np.ndarray, B: np.ndarray, h: float) -> np.ndarray:
+    """(P00, P01, P02, P10, ..., P22, G0, G1, G2) for length ``h`` as a new array."""
+    out = np.empty(12)
+    phi_gamma_into(A, B, h, out)
+    return out
 
 
-def expm_batch(M: np.ndarray) -> np.ndarray:
-    """e^M for a stack of small matrices (..., k, k): scaling and squaring with a degree-12 Taylor series.
+@njit(cache=True)
+def step_lengths(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The distinct rounded step lengths of instants ``t`` and, per step, the index of its length.
 
-    One common scaling for the stack keeps it to a few dozen batched matmuls;
-    with ||M / 2^s||_inf <= 0.25 the truncation error is below 3e-18 relative, so
-    the result matches ``scipy.linalg.expm`` to rounding (~1e-14) while costing
-    ~1 ms for a thousand 4x4 matrices instead of ~25 ms (and ~0.1 ms for one).
+    Shared by every parameter set of a batch: the exponentials are then one per
+    (set, distinct length), ~2 per set for a millis() recording.
     """
-    M = np.asarray(M, dtype=float)
-    eye = np.eye(M.shape[-1])
-    norm = float(np.max(np.sum(np.abs(M), axis=-1))) if M.size else 0.0
-    s = max(0, math.ceil(math.log2(norm / 0.25))) if norm > 0.25 else 0
-    X = M / (2.0 ** s)
-    E = eye + X / 12.0
-    for j in range(11, 0, -1):                      # Horner: I + X/1 (I + X/2 (I + ...))
-        E = eye + (X @ E) / j
-    for _ in range(s):
-        E = E @ E
-    return E
-
-
-def augmented_batch(A: np.ndarray, B: np.ndarray, h: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
-    """Phi(h), Gamma(h) for stacks A (m, 3, 3), B (m, 3) and step lengths h (scalar or (m,))."""
-    cols = phi_gamma_columns(A, B, h)
-    return cols[:, :3].transpose(2, 0, 1), cols[:, 3].T
-
-
-def phi_gamma_columns(A: np.ndarray, B: np.ndarray, h: np.ndarray | float) -> np.ndarray:
-    """[Phi(h) | Gamma(h)] as (3, 4, m), sets last: ``phi_gamma``'s Taylor/squaring for a whole stack.
-
-    With the sets on the last axis every product is one einsum over contiguous
-    rows (a stacked (m, 4, 4) matmul loops over tiny matrices instead), and
-    carrying (P, g) skips the augmented matrix's constant last row: together
-    ~4x less time than ``expm_batch`` on the augmented stack.  One scaling for
-    the whole stack (the largest norm), so the truncation bound of
-    ``expm_batch`` holds for every set.
-    """
-    m = A.shape[0]
-    hh = np.broadcast_to(np.asarray(h, dtype=float), (m,))
-    norm = float(np.max((np.abs(A).sum(axis=2) + np.abs(B)).max(axis=1) * np.abs(hh))) if m else 0.0
-    s = max(0, math.ceil(math.log2(norm / 0.25))) if norm > 0.25 else 0
-    scale = hh / (2.0 ** s)
-    X = np.ascontiguousarray(A.transpose(1, 2, 0)) * scale          # (3, 3, m)
-    b = np.ascontiguousarray(B.T) * scale                           # (3, m)
-    eye = np.eye(3)[:, :, None]
-    P = eye + X / 12.0
-    g = b / 12.0
-    for j in range(11, 0, -1):                                      # Horner on (P, g), as phi_gamma
-        g = (np.einsum("ijm,jm->im", X, g) + b) / j
-        P = np.einsum("ijm,jkm->ikm", X, P)
-        P /= j
-        P += eye
-    for _ in range(s):                                              # squaring: (P, g) <- (P P, P g + g)
-        g = np.einsum("ijm,jm->im", P, g) + g
-        P = np.einsum("ijm,jkm->ikm", P, P)
-    return np.concatenate([P, g[:, None, :]], axis=1)
+    n = max(len(t) - 1, 0)
+    keys = np.empty(n)
+    for k in range(n):
+        keys[k] = step_key(t[k + 1] - t[k])
+    lengths = np.unique(keys)
+    return lengths, np.searchsorted(lengths, keys)

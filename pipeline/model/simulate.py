@@ -29,12 +29,12 @@ import numpy as np
 
 from pipeline.errors import PdrError
 from pipeline.model.effects import PlantSpec
-from pipeline.model.linear import KEY_DECIMALS, StepCache
+from pipeline.model.kernels import TIME_EPS, linear_outputs, next_dir, run_linear_batch
+from pipeline.model.linear import KEY_DECIMALS
 from pipeline.model.nonsmooth import NonsmoothPlant
 
 GUARDS = ("sampled", "continuous")
-# Two instants closer than this are the same instant (float noise of t_ms / 1000 sums).
-TIME_EPS = 1e-12
+_NO_LOG = np.zeros(0, dtype=np.int8)
 
 
 @dataclass(frozen=True)
@@ -68,15 +68,6 @@ def sample_times(duration: float, period: float) -> np.ndarray:
     return np.arange(n) * period
 
 
-def next_dir(current_dir: int, theta: float, guard: float) -> int:
-    """The sketch's rule: reverse when the angle has reached the guard in the direction of motion."""
-    if current_dir >= 0 and theta >= guard:
-        return -1
-    if current_dir <= 0 and theta <= -guard:
-        return 1
-    return current_dir if current_dir != 0 else 1
-
-
 @dataclass(frozen=True)
 class _Plan:
     """The controller's schedule: which samples follow a log, where the sampled guard takes over."""
@@ -87,6 +78,11 @@ class _Plan:
     start: int             # first sample decided by the controller (closed loop)
     first: int             # its mode at ``start`` (0: decide by next_dir from dir0)
     dir0: int
+
+    @property
+    def log(self) -> np.ndarray:
+        """The logged commands as the kernels take them (int8; empty when there is no log)."""
+        return _NO_LOG if self.dir_log is None else self.dir_log
 
     def decide(self, k: int, d_prev: int, theta: float, guard: float) -> int:
         if not self.closed_loop or k < self.start:
@@ -130,6 +126,7 @@ def _plan(spec: PlantSpec, t, duration: float, dir0: int, dir_log, closed_loop: 
         raise PdrError("expected a non-empty, finite, non-decreasing array of sample instants", key="t")
     if dir0 not in (-1, 1):
         raise PdrError(f"expected dir0 = 1 or -1, got {dir0!r}", key="dir0")
+    t = np.ascontiguousarray(t)                # the kernels take contiguous arrays
     if dir_log is None:
         if not closed_loop:
             raise PdrError("replay (closed_loop=False) needs the logged command", key="dir_log")
@@ -162,9 +159,8 @@ def simulate(spec: PlantSpec, t: np.ndarray | None = None, *, duration: float = 
     plan = _plan(spec, t, duration, dir0, dir_log, closed_loop, guard)
     x = np.array(x0, dtype=float)
     if spec.is_linear and (guard == "sampled" or not closed_loop):
-        X, dirs = _run_linear(spec, plan, x)
-    else:
-        X, dirs = _run_events(spec, plan, x, continuous=guard == "continuous" and closed_loop)
+        return _run_linear(spec, plan, x)
+    X, dirs = _run_events(spec, plan, x, continuous=guard == "continuous" and closed_loop)
     return result_from_states(spec, plan.t, X, dirs)
 
 
@@ -176,81 +172,17 @@ def result_from_states(spec: PlantSpec, t: np.ndarray, X: np.ndarray, dirs: np.n
                      u=dirs.astype(float) * spec.v_drive)
 
 
-def _run_linear(spec: PlantSpec, plan: _Plan, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Exact ZOH stepping: x+ = Phi(h) x + Gamma(h) u0 + sum over motor changes at a of Gamma(h - a) du."""
+def _run_linear(spec: PlantSpec, plan: _Plan, x: np.ndarray) -> SimResult:
+    """Exact ZOH stepping in the compiled kernel (``kernels.run_linear_batch`` with one set)."""
     A, B = spec.params.state_matrices()
-    steps = StepCache(A, B)
-    if plan.closed_loop and spec.Td == 0.0:
-        return _run_linear_undelayed(spec, plan, x, steps)
-    cached = steps.raw
-    t = plan.t.tolist()
-    n = len(t)
-    R, guard, V, Td = spec.params.R, spec.guard_rad, spec.v_drive, spec.Td
-    I, w, dl = (float(v) for v in x)
-    out = []
-    dirs = []
-    controller = _Controller(plan, t, guard, V, Td)
-    pending = controller.pending
-    u_m = 0.0                                        # motor voltage; off until the first command
-    for k in range(n):
-        out.append((I, w, dl))
-        d = controller.step(k, dl / R)
-        dirs.append(d)
-        if k + 1 == n:
-            break
-        tk, t_next = t[k], t[k + 1]
-        h = t_next - tk
-        P = cached.get(h) or steps(h)
-        u0 = u_m
-        e0 = e1 = e2 = 0.0
-        while pending and pending[0][0] < t_next - TIME_EPS:
-            at, u_new = pending.popleft()
-            du = u_new - u_m
-            u_m = u_new
-            if du:
-                a = at - tk
-                G = P if a <= TIME_EPS else steps(h - a)
-                e0 += G[9] * du
-                e1 += G[10] * du
-                e2 += G[11] * du
-        I, w, dl = (P[0] * I + P[1] * w + P[2] * dl + P[9] * u0 + e0,
-                    P[3] * I + P[4] * w + P[5] * dl + P[10] * u0 + e1,
-                    P[6] * I + P[7] * w + P[8] * dl + P[11] * u0 + e2)
-    return np.array(out), np.array(dirs, dtype=np.int8)
-
-
-def _run_linear_undelayed(spec: PlantSpec, plan: _Plan, x: np.ndarray, steps: StepCache):
-    """The hot path (closed loop, no loop delay): the command acts at once, u = d * v_drive."""
-    cached = steps.raw
-    Ps = [cached.get(h) or steps(h) for h in np.diff(plan.t).tolist()]
-    R, guard, V = spec.params.R, spec.guard_rad, spec.v_drive
-    I, w, dl = (float(v) for v in x)
-    d = plan.decide(0, 0, dl / R, guard)
-    u = d * V
-    out = [I, w, dl]
-    dirs = [d]
-    record, record_dir = out.extend, dirs.append
-    steps_left = iter(Ps)
-    for k, (p0, p1, p2, p3, p4, p5, p6, p7, p8, g0, g1, g2) in zip(range(1, plan.start + 1), steps_left):
-        I, w, dl = (p0 * I + p1 * w + p2 * dl + g0 * u,       # before the controller starts: the log decides
-                    p3 * I + p4 * w + p5 * dl + g1 * u,
-                    p6 * I + p7 * w + p8 * dl + g2 * u)
-        record((I, w, dl))
-        d = plan.decide(k, d, dl / R, guard)
-        u = d * V
-        record_dir(d)
-    for p0, p1, p2, p3, p4, p5, p6, p7, p8, g0, g1, g2 in steps_left:
-        I, w, dl = (p0 * I + p1 * w + p2 * dl + g0 * u,
-                    p3 * I + p4 * w + p5 * dl + g1 * u,
-                    p6 * I + p7 * w + p8 * dl + g2 * u)
-        record((I, w, dl))
-        if d > 0:                                   # next_dir, inlined (d is never 0 once started)
-            if dl / R >= guard:
-                d, u = -1, -V
-        elif dl / R <= -guard:
-            d, u = 1, V
-        record_dir(d)
-    return np.array(out, dtype=float).reshape(-1, 3), np.array(dirs, dtype=np.int8)
+    current, omega, delta, theta, dirs = linear_outputs(1, len(plan.t))
+    run_linear_batch(plan.t, A[None], B[None], np.array([spec.params.R], dtype=float),
+                     np.array([spec.guard_rad], dtype=float), np.array([spec.v_drive], dtype=float),
+                     np.array([spec.Td], dtype=float), x, plan.log, plan.closed_loop, plan.start, plan.first,
+                     plan.dir0, current, omega, delta, theta, dirs)
+    return SimResult(t=plan.t, theta=theta[0], omega=omega[0], current=current[0],
+                     current_measured=current[0] + spec.I0, delta=delta[0], dir=dirs[0],
+                     u=dirs[0] * float(spec.v_drive))
 
 
 def _run_events(spec: PlantSpec, plan: _Plan, x: np.ndarray, *, continuous: bool) -> tuple[np.ndarray, np.ndarray]:

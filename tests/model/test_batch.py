@@ -80,17 +80,29 @@ def test_delay_longer_than_several_steps_and_a_repeated_instant_equal_single_cal
         np.testing.assert_allclose(batch.theta[i], r.theta, rtol=0, atol=1e-11)
 
 
-def test_stacked_step_matrices_match_scipy_expm():
+def test_step_matrices_match_scipy_expm():
     from scipy.linalg import expm
 
-    from pipeline.model.linear import augmented_batch
+    from pipeline.model.linear import phi_gamma
     specs = _linear_sets(n=6, seed=5)
     A, B = stacked_state_matrices([s.params for s in specs])
     h = np.array([0.05, 0.051, 0.0, 0.013, 0.2, 0.05])
-    Phi, Gam = augmented_batch(A, B, h)
     for i in range(len(specs)):
+        P = phi_gamma(A[i], B[i], h[i])
         M = np.zeros((4, 4))
         M[:3, :3], M[:3, 3] = A[i] * h[i], B[i] * h[i]
         E = expm(M)
-        np.testing.assert_allclose(Phi[i], E[:3, :3], rtol=1e-12, atol=1e-14)
-        np.testing.assert_allclose(Gam[i], E[:3, 3], rtol=1e-12, atol=1e-14)
+        np.testing.assert_allclose(P[:9].reshape(3, 3), E[:3, :3], rtol=1e-12, atol=1e-14)
+        np.testing.assert_allclose(P[9:], E[:3, 3], rtol=1e-12, atol=1e-14)
+
+
+def test_batch_is_the_single_call_to_the_last_bit():
+    # both run the same compiled automaton, so not even rounding may differ
+    specs = _linear_sets(seed=6)
+    log = simulate(BASE, T).dir.copy()
+    for kw in ({}, {"dir_log": log, "closed_loop": False}):
+        batch = simulate_batch(specs, T, **kw)
+        for i, s in enumerate(specs):
+            r = simulate(s, T, **kw)
+            for f in FIELDS + ("dir",):
+                assert np.array_equal(getattr(batch, f)[i], getattr(r, f)), f
