@@ -1,6 +1,6 @@
-"""The plant with Coulomb friction (stick mode) and backlash, advanced exactly from event to event.
+"""The plant with Coulomb friction (stick mode) and backlash, advanced exactly from event to event (numba).
 
-With ``Tc`` and ``gap`` the plant is piecewise affine, x' = A x + c, in regimes:
+The state is x = [I, w, delta]; the flow is affine in x, in regimes:
 
 - spring zone ``z``: +1 (theta > gap/2), 0 (inside the play: no spring torque),
   -1 (theta < -gap/2); the springs act on ``Ks * dz(theta)`` (MODEL.md backlash),
@@ -12,7 +12,7 @@ With ``Tc`` and ``gap`` the plant is piecewise affine, x' = A x + c, in regimes:
 Within a regime the exact solution is modal, ``x(tau) = Re V (e^{L tau} y0 +
 phi(L, tau) d)`` with ``y0 = V^-1 x``, ``d = V^-1 c`` and ``phi = (e^{L tau} - 1)/L``
 (``tau`` for the zero eigenvalue the dead zone has; ``pipeline.model.modal``).  A step of a regime is
-``x+ = Phi x + Psi c`` (Phi, Psi cached per step length).  Every switching
+``x+ = Phi x + Psi c`` (Phi, Psi cached per step length from its second use on).  Every switching
 surface is affine in the state (theta = +/-gap/2, w = 0, net torque = +/-Tc,
 theta = +/-guard), so each event function g = a.x + b is a sum of three
 exponentials in tau.  A step is accepted when g stays >= 0 at its end and shows
@@ -24,289 +24,475 @@ exponential, so break-away is solved in closed form.  States are snapped onto
 the surface they reached (w = 0 exactly, delta = +/-R gap/2 exactly), so a
 stuck pinion stays exactly still and a regime never re-fires at its entry.
 
-Everything per step is plain Python float arithmetic: numpy's per-call
-overhead would dominate 3x3 work (see ``benchmarks/bench_model.py``).
+``run_events`` is the automaton around it (the controller at the samples,
+delayed commands, the continuous guard).  Everything is compiled with numba:
+the plant is a ``Plant`` tuple of arrays and dicts that the functions share,
+so one simulation is one compiled call.
 """
 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit, types
+from numba.typed import Dict
 
 from pipeline.model.effects import PlantSpec
-from pipeline.model.modal import Modal, State, first_root, zero_of_derivative
+from pipeline.model.kernels import TIME_EPS, decide
+from pipeline.model.linear import step_key
+from pipeline.model.modal import (ModalData, coefficients, event_function, first_root, gd, modal_data, state,
+                                  step_matrices, zero_of_derivative)
 
 MAX_ZERO_LENGTH_EVENTS = 50
 # Steps shorter than this [s] are advanced without event detection (x' * 1e-12 s is far below any tolerance).
 MIN_EVENT_STEP = 1e-12
 
+# event kinds
+NONE, ZONE, VEL, STICK, GUARD = 0, 1, 2, 3, 4
+# indices into Plant.p
+LA, RA, KT, J, B, R, KD, TC, GAP, DB, MAX_STEP = range(11)
 
-class NonsmoothPlant:
-    """Carries the regime (z, s) between calls of ``advance``; the simulator owns the timing."""
 
-    def __init__(self, spec: PlantSpec) -> None:
-        p = spec.params
-        self.La, self.Ra, self.Ke, self.Kt, self.J, self.b, self.R = p.La, p.Ra, p.Ke, p.Kt, p.J, p.b, p.R
-        self.Kd = p.R * (p.K1 + p.K2)          # N m per m of delta: R (K1 + K2), eq. (4)
-        self.Tc = spec.Tc
-        self.gap = spec.gap
-        self.db = p.R * spec.gap / 2.0          # m   half play in rack displacement
-        A, _ = p.state_matrices()
-        A_dead = A.copy()
-        A_dead[1, 2] = 0.0                      # inside the play the springs exert nothing
-        self.modal = {True: Modal(A), False: Modal(A_dead)}
-        # longest step with at most one extremum of any event function: < 1/2 rad of the fastest mode
-        fastest = max(m.fastest for m in self.modal.values())
-        self.max_step = min(0.06, 0.5 / fastest) if fastest > 0 else 0.06
-        self.z = 1
-        self.s = 1
-        self._event_cache: dict[tuple[int, int, int], list[tuple]] = {}
-        self._quick: dict[tuple, tuple | None] = {}
+class Plant(NamedTuple):
+    """What ``advance`` carries between calls: constants, regime (z, s) and the step-matrix caches.
 
-    # -- regime bookkeeping -------------------------------------------------
-    def spring_torque(self, delta: float) -> float:
-        return 0.0 if self.z == 0 else self.Kd * (delta - self.z * self.db)
+    ``steps[r]`` maps a rounded step length to its (Phi, Psi) in regime r
+    (0: inside the play, 1: springs engaged); ``requested[r]`` holds lengths
+    asked for once -- only a length used again earns its matrices.
+    """
 
-    def net_torque(self, x: State) -> float:
-        """Torque that Coulomb friction has to hold at w = 0: Kt I - spring."""
-        return self.Kt * x[0] - self.spring_torque(x[2])
+    p: np.ndarray            # LA, RA, KT, J, B, R, KD, TC, GAP, DB, MAX_STEP
+    md: ModalData
+    zs: np.ndarray           # [z, s]
+    steps0: Dict
+    steps1: Dict
+    requested0: Dict
+    requested1: Dict
 
-    def reset(self, x: State) -> None:
-        """Regime of a state given from outside (the initial state)."""
-        if self.gap > 0.0:
-            theta = x[2] / self.R
-            self.z = 1 if theta > self.gap / 2.0 else (-1 if theta < -self.gap / 2.0 else 0)
+
+def plant_constants(spec: PlantSpec) -> tuple[np.ndarray, ModalData]:
+    """The plant's constants and the eigendecompositions of its two regimes (numpy, once per simulation)."""
+    p = spec.params
+    A, _ = p.state_matrices()
+    A_dead = A.copy()
+    A_dead[1, 2] = 0.0                      # inside the play the springs exert nothing
+    md = modal_data([A_dead, A])
+    # longest step with at most one extremum of any event function: < 1/2 rad of the fastest mode
+    max_step = min(0.06, 0.5 / md.fastest) if md.fastest > 0 else 0.06
+    Kd = p.R * (p.K1 + p.K2)                # N m per m of delta: R (K1 + K2), eq. (4)
+    const = np.array([p.La, p.Ra, p.Kt, p.J, p.b, p.R, Kd, spec.Tc, spec.gap, p.R * spec.gap / 2.0, max_step],
+                     dtype=float)
+    return const, md
+
+
+@njit(cache=True)
+def new_plant(p: np.ndarray, md: ModalData) -> Plant:
+    return Plant(p, md, np.array([1, 1], dtype=np.int64),
+                 Dict.empty(key_type=types.float64, value_type=types.float64[::1]),
+                 Dict.empty(key_type=types.float64, value_type=types.float64[::1]),
+                 Dict.empty(key_type=types.float64, value_type=types.boolean),
+                 Dict.empty(key_type=types.float64, value_type=types.boolean))
+
+
+def make_plant(spec: PlantSpec) -> Plant:
+    """A fresh plant for ``spec`` (regime z = s = +1 until ``reset``)."""
+    return new_plant(*plant_constants(spec))
+
+
+# -- regime bookkeeping -----------------------------------------------------
+@njit(cache=True)
+def spring_torque(pl: Plant, delta: float) -> float:
+    z = pl.zs[0]
+    return 0.0 if z == 0 else pl.p[KD] * (delta - z * pl.p[DB])
+
+
+@njit(cache=True)
+def net_torque(pl: Plant, I: float, delta: float) -> float:
+    """Torque that Coulomb friction has to hold at w = 0: Kt I - spring."""
+    return pl.p[KT] * I - spring_torque(pl, delta)
+
+
+@njit(cache=True)
+def reset(pl: Plant, x: tuple[float, float, float]) -> None:
+    """Regime of a state given from outside (the initial state)."""
+    p = pl.p
+    if p[GAP] > 0.0:
+        theta = x[2] / p[R]
+        pl.zs[0] = 1 if theta > p[GAP] / 2.0 else (-1 if theta < -p[GAP] / 2.0 else 0)
+    else:
+        pl.zs[0] = 1
+    if p[TC] <= 0.0 or x[1] > 0.0:
+        pl.zs[1] = 1
+    elif x[1] < 0.0:
+        pl.zs[1] = -1
+    else:
+        net = net_torque(pl, x[0], x[2])
+        pl.zs[1] = 0 if abs(net) <= p[TC] else (1 if net > 0 else -1)
+
+
+@njit(cache=True)
+def cached_step(pl: Plant, r: int, key: float):
+    """(Phi, Psi) of regime r for a rounded length if already built, else an empty array."""
+    steps = pl.steps1 if r else pl.steps0
+    if key in steps:
+        return steps[key]
+    return np.empty(0)
+
+
+@njit(cache=True)
+def step_for(pl: Plant, r: int, key: float, build_on_first: bool):
+    """(Phi, Psi) for a rounded length: built on its second request (or at once), else empty (use the closed form)."""
+    steps = pl.steps1 if r else pl.steps0
+    if key in steps:
+        return steps[key]
+    requested = pl.requested1 if r else pl.requested0
+    if not build_on_first and key not in requested:
+        requested[key] = True
+        return np.empty(0)
+    PS = step_matrices(pl.md, r, key)
+    steps[key] = PS
+    return PS
+
+
+# -- propagation --------------------------------------------------------------
+@njit(cache=True)
+def advance(pl: Plant, x: tuple[float, float, float], t0: float, t1: float, u: float, guard_mode: int,
+            guard_rad: float):
+    """Hold motor voltage ``u`` from t0 towards t1; stop early if the continuous guard is hit.
+
+    ``guard_mode`` +1/-1 arms the guard theta = +/-guard_rad (the continuous
+    controller in that mode); 0 disarms it.  Returns (x, t reached, hit).
+    """
+    t = t0
+    zero_run = 0
+    max_step = pl.p[MAX_STEP]
+    while t1 - t > 0.0:
+        L = t1 - t
+        if L > max_step:
+            L = (t1 - t) / math.ceil((t1 - t) / max_step)
+        if L < MIN_EVENT_STEP:
+            # a sliver left by an event that landed within rounding of t1: at a stick/slip
+            # threshold the sign of dw/dt is rounding noise there, so events are not resolved
+            return _drift(pl, x, u, L), t1, False
+        if pl.zs[1] == 0:
+            x, tau, kind, arg = _stick(pl, x, u, L)
         else:
-            self.z = 1
-        if self.Tc <= 0.0 or x[1] > 0.0:
-            self.s = 1
-        elif x[1] < 0.0:
-            self.s = -1
+            x, tau, kind, arg = _slip(pl, x, u, L, guard_mode, guard_rad)
+        if kind == NONE:
+            t = t + L if L < t1 - t else t1
+            continue
+        t = min(t + tau, t1)
+        zero_run = zero_run + 1 if tau == 0.0 else 0
+        if zero_run > MAX_ZERO_LENGTH_EVENTS:
+            raise RuntimeError("nonsmooth plant: too many zero-length events in a row (chattering)")
+        if kind == GUARD:
+            return x, t, True
+        x = _transition(pl, x, kind, arg)
+    return x, t1, False
+
+
+@njit(cache=True)
+def _drift(pl: Plant, x, u: float, L: float):
+    """Advance L in the current regime, ignoring events."""
+    p = pl.p
+    z, s = pl.zs[0], pl.zs[1]
+    if s == 0:
+        i_inf = u / p[RA]
+        return (i_inf + (x[0] - i_inf) * math.exp(-L * p[RA] / p[LA]), 0.0, x[2])
+    r = 1 if z != 0 else 0
+    c1 = (z * p[KD] * p[DB] - p[TC] * s) / p[J]
+    y0, d = coefficients(pl.md, r, x[0], x[1], x[2], u / p[LA], c1, 0.0)
+    return state(pl.md, r, y0, d, L)
+
+
+@njit(cache=True)
+def _transition(pl: Plant, x, kind: int, arg: int):
+    I, w, dl = x
+    if kind == ZONE:
+        # crossing into/out of the play: snap delta onto the edge it reached
+        z = pl.zs[0]
+        edge = z if z != 0 else arg
+        dl = edge * pl.p[DB]
+        pl.zs[0] = arg
+    elif kind == VEL:
+        w = 0.0
+        net = net_torque(pl, I, dl)
+        pl.zs[1] = 0 if abs(net) <= pl.p[TC] else (1 if net > 0 else -1)
+    elif kind == STICK:
+        w = 0.0
+        pl.zs[1] = arg
+    return (I, w, dl)
+
+
+@njit(cache=True)
+def _stick(pl: Plant, x, u: float, L: float):
+    """w = 0, delta frozen, La dI/dt = u - Ra I: I(tau) = Iinf + (I0 - Iinf) e^{-tau Ra/La}."""
+    p = pl.p
+    te = p[LA] / p[RA]
+    i0, delta = x[0], x[2]
+    i_inf = u / p[RA]
+    spring = spring_torque(pl, delta)
+    best_tau, best_kind, best_arg = math.inf, NONE, 0
+    # leave stick when h = sign (Kt I - spring) - Tc turns positive (slip in direction sign);
+    # I moves monotonically from i0 towards i_inf, so the crossing has a closed form
+    for sign in (1, -1):
+        h0 = sign * (p[KT] * i0 - spring) - p[TC]
+        h_inf = sign * (p[KT] * i_inf - spring) - p[TC]
+        if h0 > 0.0:
+            tau = 0.0
+        elif h_inf > 0.0:
+            i_star = (spring + sign * p[TC]) / p[KT]
+            tau = -te * math.log((i_star - i_inf) / (i0 - i_inf))
         else:
-            net = self.net_torque(x)
-            self.s = 0 if abs(net) <= self.Tc else (1 if net > 0 else -1)
+            continue
+        if tau <= L and tau < best_tau:
+            best_tau, best_kind, best_arg = tau, STICK, sign
+    tau = L if best_kind == NONE else best_tau
+    return (i_inf + (i0 - i_inf) * math.exp(-tau / te), 0.0, delta), tau, best_kind, best_arg
 
-    # -- propagation --------------------------------------------------------
-    def advance(self, x: State, t0: float, t1: float, u: float, guard_mode: int = 0,
-                guard_rad: float = 0.0) -> tuple[State, float, bool]:
-        """Hold motor voltage ``u`` from t0 towards t1; stop early if the continuous guard is hit.
 
-        ``guard_mode`` +1/-1 arms the guard theta = +/-guard_rad (the continuous
-        controller in that mode); 0 disarms it.  Returns (x, t reached, hit).
-        """
-        t = t0
-        zero_run = 0
-        while t1 - t > 0.0:
-            L = t1 - t
-            if L > self.max_step:
-                L = (t1 - t) / math.ceil((t1 - t) / self.max_step)
-            if L < MIN_EVENT_STEP:
-                # a sliver left by an event that landed within rounding of t1: at a stick/slip
-                # threshold the sign of dw/dt is rounding noise there, so events are not resolved
-                return self._drift(x, u, L), t1, False
-            if self.s == 0:
-                x, tau, event = self._stick(x, u, L)
-            else:
-                x, tau, event = self._slip(x, u, L, guard_mode, guard_rad)
-            if event is None:
-                t = t + L if L < t1 - t else t1
-                continue
-            t = min(t + tau, t1)
-            zero_run = zero_run + 1 if tau == 0.0 else 0
-            if zero_run > MAX_ZERO_LENGTH_EVENTS:
-                raise RuntimeError(f"nonsmooth plant: {zero_run} zero-length events at t={t:.9g} s (chattering)")
-            kind, arg = event
-            if kind == "guard":
-                return x, t, True
-            x = self._transition(x, kind, arg)
-        return x, t1, False
+@njit(cache=True)
+def _event_row(ev: np.ndarray, n: int, a2: float, b: float, kind: int, arg: int, aR: float) -> int:
+    """Row n of ``_events`` for a position surface a2 delta + b >= 0; returns n + 1."""
+    ev[n, 0], ev[n, 1], ev[n, 2], ev[n, 3], ev[n, 4], ev[n, 5], ev[n, 6] = 0.0, 0.0, a2, b, kind, arg, aR
+    return n + 1
 
-    def _drift(self, x: State, u: float, L: float) -> State:
-        """Advance L in the current regime, ignoring events."""
-        if self.s == 0:
-            i_inf = u / self.Ra
-            return (i_inf + (x[0] - i_inf) * math.exp(-L * self.Ra / self.La), 0.0, x[2])
-        modal = self.modal[self.z != 0]
-        c1 = (self.z * self.Kd * self.db - self.Tc * self.s) / self.J
-        return modal.state(*modal.coefficients(x, (u / self.La, c1, 0.0)), L)
 
-    def _transition(self, x: State, kind: str, arg: int) -> State:
+@njit(cache=True)
+def _events(pl: Plant, guard_mode: int, guard_rad: float) -> np.ndarray:
+    """Affine event functions, rows (a0, a1, a2, b, kind, arg, aR): a . x + b >= 0 while the slip regime holds.
+
+    ``aR`` = a2 * R gives g' = aR * w for the position surfaces (edges, guard);
+    for ``vel`` g' = s * dw/dt.
+    """
+    p = pl.p
+    z, s = pl.zs[0], pl.zs[1]
+    db, Rr = p[DB], p[R]
+    ev = np.empty((4, 7))
+    n = 0
+    if p[GAP] > 0.0:
+        if z == 1:
+            n = _event_row(ev, n, 1.0, -db, ZONE, 0, Rr)
+        elif z == -1:
+            n = _event_row(ev, n, -1.0, -db, ZONE, 0, -Rr)
+        else:
+            n = _event_row(ev, n, -1.0, db, ZONE, 1, -Rr)
+            n = _event_row(ev, n, 1.0, db, ZONE, -1, Rr)
+    if p[TC] > 0.0:
+        ev[n, 0], ev[n, 1], ev[n, 2], ev[n, 3], ev[n, 4], ev[n, 5], ev[n, 6] = 0.0, float(s), 0.0, 0.0, VEL, 0, 0.0
+        n += 1
+    if guard_mode:
+        n = _event_row(ev, n, -guard_mode / Rr, guard_rad, GUARD, 0, -guard_mode)
+    return ev[:n]
+
+
+@njit(cache=True)
+def _suspect(pl: Plant, ev: np.ndarray, x, xe, c1: float) -> bool:
+    """May event ``ev`` have fired within a step x -> xe: g(end) < 0, or a dip (g' - then +)?"""
+    p = pl.p
+    I, w, dl = x
+    a1, a2, b = ev[1], ev[2], ev[3]
+    ge = a1 * xe[1] + a2 * xe[2] + b
+    if ge < 0.0:
+        return True
+    if a1 * w + a2 * dl + b < 0.0:
+        return False
+    if ev[4] == VEL:
+        spring0 = p[KD] * dl if pl.zs[0] != 0 else 0.0
+        springe = p[KD] * xe[2] if pl.zs[0] != 0 else 0.0
+        gp0 = a1 * ((p[KT] * I - p[B] * w - spring0) / p[J] + c1)
+        gpe = a1 * ((p[KT] * xe[0] - p[B] * xe[1] - springe) / p[J] + c1)
+    else:
+        gp0, gpe = ev[6] * w, ev[6] * xe[1]
+    return gp0 < 0.0 < gpe                       # otherwise no crossing and no dip: the regime holds
+
+
+@njit(cache=True)
+def quick_entry(pl: Plant, u: float, L: float, guard_mode: int, guard_rad: float) -> np.ndarray:
+    """The whole-step shortcut for the current regime, or an empty array when only ``advance`` will do.
+
+    Returns ``(P0..P8, q0, q1, q2, lo, hi, s, k0, k1, k2, k3)``: the step is
+    ``x+ = P x + q``; it is event-free when delta+ stays in [lo, hi] (backlash
+    edges and the armed guard are all bounds on delta) with w keeping its sign
+    when a bound is finite (delta monotone, so the ends bound the step), and,
+    with Coulomb friction, s w+ >= 0 without a dip of s w (s dw/dt = s (k0 I +
+    k1 w + k2 delta + k3) not going from - to +).  In stick (s = 0) the step is
+    the current's exponential, event-free when |Kt I+ - spring| <= Tc (I is
+    monotone, so the end bounds the step).  ``quick_step`` applies the test.
+    """
+    p = pl.p
+    z, s = pl.zs[0], pl.zs[1]
+    if L > p[MAX_STEP]:
+        return np.empty(0)
+    if s == 0:
+        e = math.exp(-L * p[RA] / p[LA])
+        return np.array([e, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, (1.0 - e) * u / p[RA], 0.0, 0.0,
+                         -math.inf, math.inf, 0.0, p[KT], 0.0, 0.0, 0.0])
+    PS = cached_step(pl, 1 if z != 0 else 0, step_key(L))
+    if len(PS) == 0:
+        return PS                             # not cached yet: ``advance`` builds it on repeat
+    c0 = u / p[LA]
+    c1 = (z * p[KD] * p[DB] - p[TC] * s) / p[J]
+    lo, hi = -math.inf, math.inf
+    if p[GAP] > 0.0:
+        if z == 1:
+            lo = p[DB]
+        elif z == 0:
+            lo, hi = -p[DB], p[DB]
+        else:
+            hi = -p[DB]
+    if guard_mode > 0:
+        hi = min(hi, guard_rad * p[R])
+    elif guard_mode < 0:
+        lo = max(lo, -guard_rad * p[R])
+    kd = p[KD] if z != 0 else 0.0
+    slip = s if p[TC] > 0.0 else 0
+    return np.array([PS[0], PS[1], PS[2], PS[3], PS[4], PS[5], PS[6], PS[7], PS[8],
+                     PS[9] * c0 + PS[10] * c1, PS[12] * c0 + PS[13] * c1, PS[15] * c0 + PS[16] * c1,
+                     lo, hi, float(slip), p[KT] / p[J], -p[B] / p[J], -kd / p[J], c1])
+
+
+@njit(cache=True)
+def quick_step(pl: Plant, e: np.ndarray, x):
+    """x+ of a quick entry and whether the step is event-free (see ``quick_entry``)."""
+    I, w, dl = x
+    Ie = e[0] * I + e[1] * w + e[2] * dl + e[9]
+    we = e[3] * I + e[4] * w + e[5] * dl + e[10]
+    de = e[6] * I + e[7] * w + e[8] * dl + e[11]
+    p = pl.p
+    lo, hi, sl = e[12], e[13], e[14]
+    if pl.zs[1] == 0:
+        net = p[KT] * Ie - spring_torque(pl, dl)
+        ok = -p[TC] <= net <= p[TC]
+    else:
+        ok = lo <= de <= hi and ((w > 0.0) == (we > 0.0) or (lo == -math.inf and hi == math.inf))
+        if ok and sl:
+            k0, k1, k2, k3 = e[15], e[16], e[17], e[18]
+            ok = sl * we >= 0.0 and not (
+                sl * (k0 * I + k1 * w + k2 * dl + k3) < 0.0 < sl * (k0 * Ie + k1 * we + k2 * de + k3))
+    return (Ie, we, de), ok
+
+
+@njit(cache=True)
+def _slip(pl: Plant, x, u: float, L: float, guard_mode: int, guard_rad: float):
+    p = pl.p
+    z = pl.zs[0]
+    r = 1 if z != 0 else 0
+    # c: input, Coulomb torque against the motion, spring offset outside the play
+    c0 = u / p[LA]
+    c1 = (z * p[KD] * p[DB] - p[TC] * pl.zs[1]) / p[J]
+    PS = step_for(pl, r, step_key(L), False)
+    have_coeffs = len(PS) == 0
+    if have_coeffs:                           # a one-off length: closed form, no matrices
+        y0, d = coefficients(pl.md, r, x[0], x[1], x[2], c0, c1, 0.0)
+        xe = state(pl.md, r, y0, d, L)
+    else:
+        y0 = d = np.empty(0, dtype=np.complex128)
         I, w, dl = x
-        if kind == "zone":
-            # crossing into/out of the play: snap delta onto the edge it reached
-            edge = self.z if self.z != 0 else arg
-            dl = edge * self.db
-            self.z = arg
-        elif kind == "vel":
-            w = 0.0
-            net = self.net_torque((I, w, dl))
-            self.s = 0 if abs(net) <= self.Tc else (1 if net > 0 else -1)
-        elif kind == "stick":
-            w = 0.0
-            self.s = arg
-        return (I, w, dl)
+        xe = (PS[0] * I + PS[1] * w + PS[2] * dl + PS[9] * c0 + PS[10] * c1,
+              PS[3] * I + PS[4] * w + PS[5] * dl + PS[12] * c0 + PS[13] * c1,
+              PS[6] * I + PS[7] * w + PS[8] * dl + PS[15] * c0 + PS[16] * c1)
+    events = _events(pl, guard_mode, guard_rad)
+    best_tau, best_kind, best_arg = math.inf, NONE, 0
+    for i in range(len(events)):
+        ev = events[i]
+        if not _suspect(pl, ev, x, xe, c1):
+            continue
+        if not have_coeffs:
+            y0, d = coefficients(pl.md, r, x[0], x[1], x[2], c0, c1, 0.0)
+            have_coeffs = True
+        a0, a1, a2, b = ev[0], ev[1], ev[2], ev[3]
+        F = event_function(pl.md, r, a0, a1, a2, b, y0, d)
+        g0, gp0 = a1 * x[1] + a2 * x[2] + b, gd(F, 0.0)[1]
+        ge = a1 * xe[1] + a2 * xe[2] + b
+        if ge >= 0.0:
+            t_min = zero_of_derivative(F, 0.0, L)
+            # a dip below the surface by rounding only (e.g. break-away with the net torque
+            # exactly at Tc, where g'(0) is 0 up to rounding) is not an event
+            tol = max(1e-12 * (abs(a1 * x[1]) + abs(a2 * x[2]) + abs(a1 * xe[1]) + abs(a2 * xe[2]) + abs(b)), F[2])
+            if gd(F, t_min)[0] >= -tol:
+                continue                      # the dip stays above the surface
+            hi = t_min
+        else:
+            hi = L
+        tau = first_root(F, hi, g0, gp0)
+        if tau < best_tau:
+            best_tau, best_kind, best_arg = tau, int(ev[4]), int(ev[5])
+    if best_kind == NONE:
+        return xe, L, NONE, 0
+    xn = state(pl.md, r, y0, d, best_tau) if best_tau > 0.0 else x
+    return xn, best_tau, best_kind, best_arg
 
-    def _stick(self, x: State, u: float, L: float):
-        """w = 0, delta frozen, La dI/dt = u - Ra I: I(tau) = Iinf + (I0 - Iinf) e^{-tau Ra/La}."""
-        te = self.La / self.Ra
-        i0, delta = x[0], x[2]
-        i_inf = u / self.Ra
-        spring = self.spring_torque(delta)
-        best_tau, best = math.inf, None
-        # leave stick when h = sign (Kt I - spring) - Tc turns positive (slip in direction sign);
-        # I moves monotonically from i0 towards i_inf, so the crossing has a closed form
-        for sign in (1, -1):
-            h0 = sign * (self.Kt * i0 - spring) - self.Tc
-            h_inf = sign * (self.Kt * i_inf - spring) - self.Tc
-            if h0 > 0.0:
-                tau = 0.0
-            elif h_inf > 0.0:
-                i_star = (spring + sign * self.Tc) / self.Kt
-                tau = -te * math.log((i_star - i_inf) / (i0 - i_inf))
+
+# -- the automaton around the plant -----------------------------------------------
+@njit(cache=True)
+def run_events(t, p, md, R, guard, V, Td, x0, log, closed_loop, start, first, dir0, continuous,
+               current, omega, delta, dirs) -> None:
+    """Event-driven exact integration at instants ``t`` (stick/slip, backlash edges, continuous guard, delays).
+
+    At each sample the controller decides (``kernels.decide``); a command
+    reaches the motor Td later (a queue of arrival times and voltages).  Each
+    step first tries the cached whole step of the regime (``quick_entry``), and
+    hands over to ``advance`` when that may hold an event.  The continuous
+    controller reverses the instant theta reaches the guard, between samples.
+    """
+    pl = new_plant(p, md)
+    x = (x0[0], x0[1], x0[2])
+    reset(pl, x)
+    n = len(t)
+    arrive = np.empty(n + 16)
+    volts = np.empty(n + 16)
+    head = tail = 0
+    d = 0
+    u_m = 0.0
+    for k in range(n):
+        current[k], omega[k], delta[k] = x
+        dn = decide(k, d, x[2] / R, guard, log, closed_loop, start, first, dir0)
+        if dn != d or k == 0:
+            arrive, volts, head, tail = _enqueue(arrive, volts, head, tail, t[k] + Td, dn * V)
+        d = dn
+        dirs[k] = d
+        if k + 1 == n:
+            break
+        tk, t_next = t[k], t[k + 1]
+        armed = d if continuous and k >= start else 0
+        while True:
+            while head < tail and arrive[head] <= tk + TIME_EPS:
+                u_m = volts[head]
+                head += 1
+            if head < tail and arrive[head] < t_next - TIME_EPS:
+                stop = arrive[head]               # a delayed command lands inside this step
             else:
-                continue
-            if tau <= L and tau < best_tau:
-                best_tau, best = tau, ("stick", sign)
-        tau = L if best is None else best_tau
-        return (i_inf + (i0 - i_inf) * math.exp(-tau / te), 0.0, delta), tau, best
-
-    def _events(self, guard_mode: int, guard_rad: float) -> list[tuple]:
-        """Affine event functions (a0, a1, a2, b, kind, arg, aR): a . x + b >= 0 while the slip regime holds.
-
-        Cached per regime.  ``aR`` = a2 * R gives g' = aR * w for the position
-        surfaces (edges, guard); for ``vel`` g' = s * dw/dt.
-        """
-        key = (self.z, self.s, guard_mode)
-        ev = self._event_cache.get(key)
-        if ev is not None:
-            return ev
-        ev = []
-        db, R = self.db, self.R
-        if self.gap > 0.0:
-            if self.z == 1:
-                ev.append((0.0, 0.0, 1.0, -db, "zone", 0, R))
-            elif self.z == -1:
-                ev.append((0.0, 0.0, -1.0, -db, "zone", 0, -R))
-            else:
-                ev.append((0.0, 0.0, -1.0, db, "zone", 1, -R))
-                ev.append((0.0, 0.0, 1.0, db, "zone", -1, R))
-        if self.Tc > 0.0:
-            ev.append((0.0, float(self.s), 0.0, 0.0, "vel", 0, 0.0))
-        if guard_mode:
-            ev.append((0.0, 0.0, -guard_mode / R, guard_rad, "guard", 0, -guard_mode))
-        self._event_cache[key] = ev
-        return ev
-
-    def _suspects(self, x: State, xe: State, c1: float, events: list[tuple]) -> list[tuple]:
-        """Event functions that may have fired within a step x -> xe: g(end) < 0, or a dip (g' - then +)."""
-        out = []
-        I, w, dl = x
-        for ev in events:
-            a1, a2, b = ev[1], ev[2], ev[3]
-            ge = a1 * xe[1] + a2 * xe[2] + b
-            if ge >= 0.0:
-                if a1 * w + a2 * dl + b < 0.0:
+                stop = t_next
+            # lengths rounded like the step caches' keys, so repeated spacings hit the same entry
+            L = step_key(stop - tk)
+            e = quick_entry(pl, u_m, L, armed, guard)
+            if len(e):
+                xq, ok = quick_step(pl, e, x)
+                if ok:
+                    x, tk = xq, stop
+                    if stop == t_next:
+                        break
                     continue
-                if ev[4] == "vel":
-                    spring0 = self.Kd * dl if self.z != 0 else 0.0
-                    springe = self.Kd * xe[2] if self.z != 0 else 0.0
-                    gp0 = a1 * ((self.Kt * I - self.b * w - spring0) / self.J + c1)
-                    gpe = a1 * ((self.Kt * xe[0] - self.b * xe[1] - springe) / self.J + c1)
-                else:
-                    gp0, gpe = ev[6] * w, ev[6] * xe[1]
-                if not (gp0 < 0.0 < gpe):
-                    continue                      # no crossing and no dip: the regime holds
-            out.append((ev, ge))
-        return out
+            x, tk, hit = advance(pl, x, tk, stop, u_m, armed, guard)
+            if hit:
+                # the continuous controller reverses the instant theta reaches the guard
+                d = armed = -d
+                arrive, volts, head, tail = _enqueue(arrive, volts, head, tail, tk + Td, d * V)
+            elif stop == t_next:
+                break
 
-    def quick_entry(self, u: float, L: float, guard_mode: int, guard_rad: float) -> tuple | None:
-        """The whole-step shortcut for the current regime, or None when only ``advance`` will do.
 
-        Returns ``(P0..P8, q0, q1, q2, lo, hi, s, k0, k1, k2, k3)``: the step is
-        ``x+ = P x + q``; it is event-free when delta+ stays in [lo, hi] (backlash
-        edges and the armed guard are all bounds on delta) with w keeping its sign
-        when a bound is finite (delta monotone, so the ends bound the step), and,
-        with Coulomb friction, s w+ >= 0 without a dip of s w (s dw/dt = s (k0 I +
-        k1 w + k2 delta + k3) not going from - to +).  In stick (s = 0) the step is
-        the current's exponential, event-free when |Kt I+ - spring| <= Tc (I is
-        monotone, so the end bounds the step): then lo = hi = the frozen delta's
-        spring torque and k0 = Kt.  The simulator inlines the test; entries are
-        cached per (regime, u, L, guard).
-        """
-        key = (self.z, self.s, u, L, guard_mode)
-        entry = self._quick.get(key)
-        if entry is not None or key in self._quick:
-            return entry
-        z, s = self.z, self.s
-        if L > self.max_step:
-            entry = None
-        elif s == 0:
-            e = math.exp(-L * self.Ra / self.La)
-            entry = (e, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, (1.0 - e) * u / self.Ra, 0.0, 0.0,
-                     -math.inf, math.inf, 0, self.Kt, 0.0, 0.0, 0.0)
-        else:
-            modal = self.modal[z != 0]
-            PS = modal.raw.get(L) or modal.cached(L)
-            if PS is None:
-                return None                       # not cached yet: ``advance`` builds it on repeat
-            P, S = PS
-            c0 = u / self.La
-            c1 = (z * self.Kd * self.db - self.Tc * s) / self.J
-            q = (S[0] * c0 + S[1] * c1, S[3] * c0 + S[4] * c1, S[6] * c0 + S[7] * c1)
-            lo, hi = -math.inf, math.inf
-            if self.gap > 0.0:
-                lo, hi = {1: (self.db, math.inf), 0: (-self.db, self.db), -1: (-math.inf, -self.db)}[z]
-            if guard_mode > 0:
-                hi = min(hi, guard_rad * self.R)
-            elif guard_mode < 0:
-                lo = max(lo, -guard_rad * self.R)
-            kd = self.Kd if z != 0 else 0.0
-            slip = s if self.Tc > 0.0 else 0
-            entry = (*P, *q, lo, hi, slip, self.Kt / self.J, -self.b / self.J, -kd / self.J, c1)
-        self._quick[key] = entry
-        return entry
-
-    def _slip(self, x: State, u: float, L: float, guard_mode: int, guard_rad: float):
-        z = self.z
-        modal = self.modal[z != 0]
-        # c: input, Coulomb torque against the motion, spring offset outside the play
-        c0 = u / self.La
-        c1 = (z * self.Kd * self.db - self.Tc * self.s) / self.J
-        coeffs = None
-        PS = modal.raw.get(L)
-        if PS is None and not modal.seen(L):
-            coeffs = modal.coefficients(x, (c0, c1, 0.0))      # a one-off length: closed form, no matrices
-            xe = modal.state(*coeffs, L)
-        else:
-            P, S = PS or modal.step(L)
-            I, w, dl = x
-            xe = (P[0] * I + P[1] * w + P[2] * dl + S[0] * c0 + S[1] * c1,
-                  P[3] * I + P[4] * w + P[5] * dl + S[3] * c0 + S[4] * c1,
-                  P[6] * I + P[7] * w + P[8] * dl + S[6] * c0 + S[7] * c1)
-        events = self._events(guard_mode, guard_rad)
-        suspects = self._suspects(x, xe, c1, events) if events else ()
-        if not suspects:
-            return xe, L, None
-        if coeffs is None:
-            coeffs = modal.coefficients(x, (c0, c1, 0.0))
-        best_tau, best = math.inf, None
-        for (a0, a1, a2, b, kind, arg, _), ge in suspects:
-            gd = modal.event_function((a0, a1, a2), b, *coeffs)
-            g0, gp0 = a1 * x[1] + a2 * x[2] + b, gd(0.0)[1]
-            if ge >= 0.0:
-                t_min = zero_of_derivative(gd, 0.0, L)
-                # a dip below the surface by rounding only (e.g. break-away with the net torque
-                # exactly at Tc, where g'(0) is 0 up to rounding) is not an event
-                tol = max(1e-12 * (abs(a1 * x[1]) + abs(a2 * x[2]) + abs(a1 * xe[1]) + abs(a2 * xe[2]) + abs(b)),
-                          gd.noise)
-                if gd(t_min)[0] >= -tol:
-                    continue                      # the dip stays above the surface
-                hi = t_min
-            else:
-                hi = L
-            tau = first_root(gd, hi, g0, gp0)
-            if tau < best_tau:
-                best_tau, best = tau, (kind, arg)
-        if best is None:
-            return xe, L, None
-        xn = modal.state(*coeffs, best_tau) if best_tau > 0.0 else x
-        return xn, best_tau, best
+@njit(cache=True)
+def _enqueue(arrive: np.ndarray, volts: np.ndarray, head: int, tail: int, at: float, v: float):
+    """Append (at, v) to the commands on their way; continuous-guard reversals may outgrow the first size."""
+    if tail == len(arrive):
+        live = tail - head
+        grown_at, grown_v = np.empty(2 * live + 16), np.empty(2 * live + 16)
+        grown_at[:live], grown_v[:live] = arrive[head:tail], volts[head:tail]
+        arrive, volts, head, tail = grown_at, grown_v, 0, live
+    arrive[tail] = at
+    volts[tail] = v
+    return arrive, volts, head, tail + 1

@@ -21,19 +21,20 @@ Two exact integrators behind one ``simulate``:
 
 from __future__ import annotations
 
-import math
-from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
 
 from pipeline.errors import PdrError
 from pipeline.model.effects import PlantSpec
-from pipeline.model.kernels import TIME_EPS, linear_outputs, next_dir, run_linear_batch
-from pipeline.model.linear import KEY_DECIMALS
-from pipeline.model.nonsmooth import NonsmoothPlant
+from pipeline.model import kernels
+from pipeline.model.kernels import linear_outputs, run_linear_batch
+from pipeline.model.nonsmooth import plant_constants, run_events
 
 GUARDS = ("sampled", "continuous")
+# The sketch's rule (``kernels.next_dir``) as plain Python, for callers that apply it sample by sample
+# outside a kernel (derive's phases, the rig's reference plant): same source, no dispatch per call.
+next_dir = kernels.next_dir.py_func
 _NO_LOG = np.zeros(0, dtype=np.int8)
 
 
@@ -84,39 +85,6 @@ class _Plan:
         """The logged commands as the kernels take them (int8; empty when there is no log)."""
         return _NO_LOG if self.dir_log is None else self.dir_log
 
-    def decide(self, k: int, d_prev: int, theta: float, guard: float) -> int:
-        if not self.closed_loop or k < self.start:
-            return int(self.dir_log[k])
-        if k == self.start:
-            return self.first if self.first else next_dir(self.dir0, theta, guard)
-        return next_dir(d_prev, theta, guard)
-
-
-class _Controller:
-    """The sketch's decision at each sample and the commands on their way to the motor.
-
-    A command decided at sample k reaches the motor at t_k + Td (``loop_delay``);
-    ``pending`` holds (arrival time, voltage) for the integrators to apply.
-    """
-
-    def __init__(self, plan: _Plan, t: list[float], guard: float, v_drive: float, Td: float) -> None:
-        self.plan, self.t, self.guard, self.v_drive, self.Td = plan, t, guard, v_drive, Td
-        self.pending: deque[tuple[float, float]] = deque()
-        self.d = 0
-
-    def step(self, k: int, theta: float) -> int:
-        d = self.plan.decide(k, self.d, theta, self.guard)
-        if d != self.d or k == 0:
-            self.pending.append((self.t[k] + self.Td, d * self.v_drive))
-        self.d = d
-        return d
-
-    def reverse_at(self, time: float) -> int:
-        """The continuous-guard variant: reverse the instant theta reaches the guard, between samples."""
-        self.d = -self.d
-        self.pending.append((time + self.Td, self.d * self.v_drive))
-        return self.d
-
 
 def _plan(spec: PlantSpec, t, duration: float, dir0: int, dir_log, closed_loop: bool, guard: str) -> _Plan:
     if guard not in GUARDS:
@@ -160,16 +128,7 @@ def simulate(spec: PlantSpec, t: np.ndarray | None = None, *, duration: float = 
     x = np.array(x0, dtype=float)
     if spec.is_linear and (guard == "sampled" or not closed_loop):
         return _run_linear(spec, plan, x)
-    X, dirs = _run_events(spec, plan, x, continuous=guard == "continuous" and closed_loop)
-    return result_from_states(spec, plan.t, X, dirs)
-
-
-def result_from_states(spec: PlantSpec, t: np.ndarray, X: np.ndarray, dirs: np.ndarray) -> SimResult:
-    """Package states [I, w, delta] per sample (..., n, 3) and commands as a ``SimResult``."""
-    current = X[..., 0]
-    return SimResult(t=t, theta=X[..., 2] / spec.params.R, omega=X[..., 1], current=current,
-                     current_measured=current + spec.I0, delta=X[..., 2], dir=dirs,
-                     u=dirs.astype(float) * spec.v_drive)
+    return _run_events(spec, plan, x, continuous=guard == "continuous" and closed_loop)
 
 
 def _run_linear(spec: PlantSpec, plan: _Plan, x: np.ndarray) -> SimResult:
@@ -185,73 +144,13 @@ def _run_linear(spec: PlantSpec, plan: _Plan, x: np.ndarray) -> SimResult:
                      u=dirs[0] * float(spec.v_drive))
 
 
-def _run_events(spec: PlantSpec, plan: _Plan, x: np.ndarray, *, continuous: bool) -> tuple[np.ndarray, np.ndarray]:
-    """Event-driven exact integration (stick/slip, backlash edges, continuous guard, delayed commands)."""
-    plant = NonsmoothPlant(spec)
-    x = tuple(float(v) for v in x)
-    plant.reset(x)
-    t = plan.t.tolist()
-    n = len(t)
-    R, guard, V, Td = spec.params.R, spec.guard_rad, spec.v_drive, spec.Td
-    hs = np.round(np.diff(plan.t), KEY_DECIMALS).tolist()
-    out = []
-    dirs = []
-    controller = _Controller(plan, t, guard, V, Td)
-    pending = controller.pending
-    u_m = 0.0
-    by_regime: dict[tuple, dict[float, tuple]] = {}    # (z, s, u, armed) -> step length -> quick entry
-    last_regime = None
-    by_length: dict[float, tuple] = {}
-    for k in range(n):
-        out.append(x)
-        d = controller.step(k, x[2] / R)
-        dirs.append(d)
-        if k + 1 == n:
-            break
-        tk, t_next = t[k], t[k + 1]
-        armed = d if continuous and k >= plan.start else 0
-        while True:
-            while pending and pending[0][0] <= tk + TIME_EPS:
-                u_m = pending.popleft()[1]
-            if pending and pending[0][0] < t_next - TIME_EPS:
-                stop = pending[0][0]                  # a delayed command lands inside this step
-            else:
-                stop = t_next
-            # lengths rounded like the step caches' keys, so repeated spacings hit the same entry
-            L = hs[k] if stop == t_next and tk == t[k] else round(stop - tk, KEY_DECIMALS)
-            # the common case, inlined: a cached whole step with no event (see NonsmoothPlant.quick_entry)
-            regime = (plant.z, plant.s, u_m, armed)
-            if regime != last_regime:
-                by_length = by_regime.setdefault(regime, {})
-                last_regime = regime
-            e = by_length.get(L)
-            if e is None:
-                e = plant.quick_entry(u_m, L, armed, guard)
-                if e is not None:
-                    by_length[L] = e
-            if e is not None:
-                p0, p1, p2, p3, p4, p5, p6, p7, p8, q0, q1, q2, lo, hi, sl, k0, k1, k2, k3 = e
-                I, w, dl = x
-                Ie = p0 * I + p1 * w + p2 * dl + q0
-                we = p3 * I + p4 * w + p5 * dl + q1
-                de = p6 * I + p7 * w + p8 * dl + q2
-                if regime[1] == 0:
-                    net = plant.Kt * Ie - plant.spring_torque(dl)
-                    ok = -plant.Tc <= net <= plant.Tc
-                else:
-                    ok = lo <= de <= hi and ((w > 0.0) == (we > 0.0) or (lo == -math.inf and hi == math.inf))
-                    if ok and sl:
-                        ok = sl * we >= 0.0 and not (
-                            sl * (k0 * I + k1 * w + k2 * dl + k3) < 0.0 < sl * (k0 * Ie + k1 * we + k2 * de + k3))
-                if ok:
-                    x, tk = (Ie, we, de), stop
-                    if stop == t_next:
-                        break
-                    continue
-            x, tk, hit = plant.advance(x, tk, stop, u_m, armed, guard)
-            if hit:
-                # the continuous controller reverses the instant theta reaches the guard
-                d = armed = controller.reverse_at(tk)
-            elif stop == t_next:
-                break
-    return np.array(out), np.array(dirs, dtype=np.int8)
+def _run_events(spec: PlantSpec, plan: _Plan, x: np.ndarray, *, continuous: bool) -> SimResult:
+    """Event-driven exact integration in the compiled kernel (``nonsmooth.run_events``)."""
+    n = len(plan.t)
+    current, omega, delta = np.empty(n), np.empty(n), np.empty(n)
+    dirs = np.empty(n, dtype=np.int8)
+    run_events(plan.t, *plant_constants(spec), float(spec.params.R), float(spec.guard_rad), float(spec.v_drive),
+               float(spec.Td), x, plan.log, plan.closed_loop, plan.start, plan.first, plan.dir0, continuous,
+               current, omega, delta, dirs)
+    return SimResult(t=plan.t, theta=delta / spec.params.R, omega=omega, current=current,
+                     current_measured=current + spec.I0, delta=delta, dir=dirs, u=dirs * float(spec.v_drive))

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from pipeline.config import default_config
-from pipeline.model.nonsmooth import NonsmoothPlant
+from pipeline.model.nonsmooth import advance, make_plant, reset
 from pipeline.model.simulate import simulate
 from pipeline.rig.plant import simulate_reference
 from tests.model.ivp_reference import jittered_times
@@ -103,12 +103,12 @@ def test_stuck_intervals_hold_still_while_the_net_torque_is_within_tc():
 
 def test_continuous_guard_switches_exactly_at_the_guard():
     spec = replace(BASE, Tc=6e-4, gap=0.1)
-    plant = NonsmoothPlant(spec)
+    plant = make_plant(spec)
     x = (0.0, 0.0, 0.0)
-    plant.reset(x)
+    reset(plant, x)
     t, hit = 0.0, False
     while not hit:
-        x, t, hit = plant.advance(x, t, t + 0.05, spec.v_drive, guard_mode=1, guard_rad=spec.guard_rad)
+        x, t, hit = advance(plant, x, t, t + 0.05, spec.v_drive, 1, spec.guard_rad)
     assert abs(x[2] / spec.params.R - spec.guard_rad) < 1e-12
     assert 0.5 < t < 2.0
 
