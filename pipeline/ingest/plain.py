@@ -5,16 +5,12 @@ plain: one header, rows of numbers, nothing else.  For those the whole parse
 is multi-threaded Arrow CSV reads; anything unusual sends the capture to
 the general path (``pipeline.ingest.parse.parse_capture``), which reads line by
 line (still vectorised) and reports every line it cannot read.
-
-The body can be read in one piece (``parse_plain``) or in blocks of whole lines
-(``plain_blocks`` + ``read_plain_rows``, what ``pipeline.ingest.streamed`` does to
-encode one block while the next is read); both use the same checks and reader.
 """
 
 from __future__ import annotations
 
 import re
-from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -83,22 +79,8 @@ def plain_layout(data: bytes, columns: ColumnsConfig, source: str) -> PlainLayou
     return PlainLayout(header, body_start, layout, len(names), notes)
 
 
-def plain_blocks(data: bytes, start: int, block_bytes: int) -> Iterator[tuple[int, int]]:
-    """(start, end) byte ranges of about ``block_bytes`` each, every one ending just after a line feed."""
-    while start < len(data):
-        end = data.find(b"\n", min(start + block_bytes, len(data)) - 1) + 1 or len(data)
-        yield start, end
-        start = end
-
-
-def read_plain_rows(rows: bytes, lay: PlainLayout) -> dict[str, np.ndarray] | None:
-    """Whole plain lines -> raw columns (t_raw float64, the others int64); None when any line is not plain.
-
-    Plain: every byte a digit, comma, sign, point or line break, no blank lines,
-    every row has ``lay.width`` fields, every field converts, time never goes back.
-    """
-    if not rows or rows.translate(None, _PLAIN):
-        return None
+def _read_typed(rows: bytes, lay: PlainLayout) -> dict[str, np.ndarray] | None:
+    """The layout's columns of ``rows`` read by Arrow (t_raw float64, the others int64); None if any field fails."""
     col_names = [f"f{j}" for j in range(lay.width)]
     wanted = {col_names[j]: (logical, pa.float64() if logical == "t_raw" else pa.int64())
               for logical, j in lay.layout.items()}
@@ -110,12 +92,30 @@ def read_plain_rows(rows: bytes, lay: PlainLayout) -> dict[str, np.ndarray] | No
                                                                   null_values=[], quoted_strings_can_be_null=False))
     except pa.ArrowException:
         return None
-    values = {wanted[k][0]: table.column(k).to_numpy() for k in wanted}
-    n = table.num_rows
+    return {wanted[k][0]: table.column(k).to_numpy() for k in wanted}
+
+
+def read_plain_rows(rows: bytes, lay: PlainLayout) -> dict[str, np.ndarray] | None:
+    """Whole plain lines -> raw columns (t_raw float64, the others int64); None when any line is not plain.
+
+    Plain: every byte a digit, comma, sign, point or line break, no blank lines,
+    every row has ``lay.width`` fields, every field converts, time never goes back.
+    The byte checks run while Arrow reads (it releases the GIL, and its reader
+    leaves part of the second core idle), so they cost little wall time.
+    """
+    if not rows:
+        return None
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        reading = pool.submit(_read_typed, rows, lay)
+        # one row per line feed: Arrow skips blank lines (also a lone "\r\n") and splits on a stray "\r",
+        # so any of those shows as a count mismatch (a numpy count is ~10x cheaper than `b"\n\n" in data`)
+        plain = not rows.translate(None, _PLAIN)
+        lines = np.count_nonzero(np.frombuffer(rows, dtype=np.uint8) == 10) if plain else 0
+        values = reading.result()
+    if not plain or values is None:
+        return None
     t = values["t_raw"]
-    # one row per line feed: Arrow skips blank lines (also a lone "\r\n") and splits on a stray "\r",
-    # so any of those shows as a count mismatch (a numpy count is ~10x cheaper than `b"\n\n" in data`)
-    if n == 0 or n != np.count_nonzero(np.frombuffer(rows, dtype=np.uint8) == 10) or (t[1:] < t[:-1]).any():
+    if len(t) == 0 or len(t) != lines or (t[1:] < t[:-1]).any():
         return None
     return values
 

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import os
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -39,7 +41,9 @@ PARQUET_ENCODING = {"t_s": (_SPLIT, "snappy"), "t_raw": (_SPLIT, "snappy"), "lin
 PARQUET_OPTIONS = {"use_dictionary": False,
                    "column_encoding": {c: enc for c, (enc, _) in PARQUET_ENCODING.items()},
                    "compression": {c: comp for c, (_, comp) in PARQUET_ENCODING.items()},
-                   "write_statistics": ["t_s", "t_raw", "line", "segment"]}
+                   "write_statistics": ["t_s", "t_raw", "line", "segment"],
+                   "write_batch_size": 1 << 16}     # values per encoder call: 64k instead of 1k saves ~6 ms
+ROW_GROUP_ROWS = 1 << 17         # 131,072 rows (~3 MB) per row group: written out while the next is encoded
 
 
 def signals_table(df: pd.DataFrame, where: str) -> pa.Table:
@@ -92,11 +96,21 @@ def remove_stale_temporaries(root: Path) -> None:
 
 
 def write_signals(paths: RunPaths, df: pd.DataFrame) -> None:
-    """A run's signals.parquet, checked against the schema first; the first ingest output of a run."""
+    """A run's signals.parquet, checked against the schema first; the first ingest output of a run.
+
+    Written in row groups of ``ROW_GROUP_ROWS``, each one's disk write started as soon as it is
+    in the file (fdatasync in a helper thread) while the next is encoded: the closing fsync of
+    ``atomic_path`` then finds little left to wait for (a 24 MB file synced only at the end
+    waits 40-70 ms here).
+    """
     remove_stale_temporaries(paths.root)
     table = signals_table(df, str(paths.signals))
-    with atomic_path(paths.signals) as tmp:
-        pq.write_table(table, tmp, **PARQUET_OPTIONS)
+    with atomic_path(paths.signals) as tmp, open(tmp, "wb") as fh, ThreadPoolExecutor(max_workers=1) as syncer:
+        with pq.ParquetWriter(fh, table.schema, **PARQUET_OPTIONS) as writer:
+            for start in range(0, max(1, len(table)), ROW_GROUP_ROWS):
+                writer.write_table(table.slice(start, ROW_GROUP_ROWS), row_group_size=ROW_GROUP_ROWS)
+                fh.flush()
+                syncer.submit(os.fdatasync, fh.fileno())
 
 
 def write_run(paths: RunPaths, df: pd.DataFrame, report: dict, cfg: RigConfig) -> None:
