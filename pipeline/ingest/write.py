@@ -95,10 +95,10 @@ def remove_stale_temporaries(root: Path) -> None:
             tmp.unlink(missing_ok=True)
 
 
-def write_signals(paths: RunPaths, df: pd.DataFrame) -> None:
+def write_signals(paths: RunPaths, df: pd.DataFrame, row_group_rows: int = ROW_GROUP_ROWS) -> None:
     """A run's signals.parquet, checked against the schema first; the first ingest output of a run.
 
-    Written in row groups of ``ROW_GROUP_ROWS``, each one's disk write started as soon as it is
+    Written in row groups of ``row_group_rows``, each one's disk write started as soon as it is
     in the file (fdatasync in a helper thread) while the next is encoded: the closing fsync of
     ``atomic_path`` then finds little left to wait for (a 24 MB file synced only at the end
     waits 40-70 ms here).
@@ -107,8 +107,8 @@ def write_signals(paths: RunPaths, df: pd.DataFrame) -> None:
     table = signals_table(df, str(paths.signals))
     with atomic_path(paths.signals) as tmp, open(tmp, "wb") as fh, ThreadPoolExecutor(max_workers=1) as syncer:
         with pq.ParquetWriter(fh, table.schema, **PARQUET_OPTIONS) as writer:
-            for start in range(0, max(1, len(table)), ROW_GROUP_ROWS):
-                writer.write_table(table.slice(start, ROW_GROUP_ROWS), row_group_size=ROW_GROUP_ROWS)
+            for start in range(0, max(1, len(table)), row_group_rows):
+                writer.write_table(table.slice(start, row_group_rows), row_group_size=row_group_rows)
                 fh.flush()
                 syncer.submit(os.fdatasync, fh.fileno())
 

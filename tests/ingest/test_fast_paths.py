@@ -120,3 +120,64 @@ def test_plain_path_hands_blank_and_split_lines_to_the_general_path(body):
 
     assert parse_plain(b"t_ms,counts,adc,dir\n" + body, ColumnsConfig(), "x.csv") is None
     assert parse_plain(b"t_ms,counts,adc,dir\n0,0,511,1\n50,9,516,1\n", ColumnsConfig(), "x.csv") is not None
+
+
+def _range_violations_by_masks(values, cfg):
+    """The range rules as one mask per rule over every row: what ``range_violations`` must agree with."""
+    from pipeline.ingest.timing import COUNTER_RANGE
+    span = COUNTER_RANGE[cfg.columns.time_unit]
+    t = values["t_raw"]
+    rules = [((t < 0) | (t >= span if span else False), "time")]
+    if "adc" in values:
+        rules.append(((values["adc"] < 0) | (values["adc"] >= cfg.current_sensor.adc_steps), "adc"))
+    if "dir" in values:
+        rules.append(((values["dir"] < -1) | (values["dir"] > 1), "dir"))
+    bad, first = np.zeros(len(t), dtype=bool), {}
+    for mask, text in rules:
+        first |= {int(i): text for i in np.flatnonzero(mask & ~bad)}
+        bad |= mask
+    return bad, first
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.tuples(st.sampled_from([-1.0, 0.0, 5.0, 2.0**32 - 1, 2.0**32, np.nan]),
+                          st.integers(-2, 1025), st.integers(-2, 2)), min_size=0, max_size=8),
+       st.sets(st.sampled_from(["adc", "dir"])), st.sampled_from(["ms", "s"]))
+def test_range_rules_settled_by_min_max_agree_with_a_mask_per_rule(rows, absent, unit):
+    import dataclasses
+
+    from pipeline.ingest.convert import range_violations
+    cfg = default_config()
+    cfg = dataclasses.replace(cfg, columns=dataclasses.replace(cfg.columns, time_unit=unit))
+    values = {"t_raw": np.array([r[0] for r in rows], dtype=np.float64),
+              "adc": np.array([r[1] for r in rows], dtype=np.int64), "dir": np.array([r[2] for r in rows], dtype=np.int64)}
+    values = {k: v for k, v in values.items() if k not in absent}
+    bad, reason = range_violations(values, cfg)
+    ref_bad, ref_first = _range_violations_by_masks(values, cfg)
+    assert np.array_equal(bad, ref_bad)
+    assert {i: r.split()[0] for i, r in reason.items()} == ref_first
+
+
+@pytest.mark.parametrize("values", [
+    np.arange(5000) % 7 * 0.1,                                        # few distinct: formatted once each
+    np.tile([0.0, -0.0, np.nan, np.inf, -np.inf, 1e300, 5e-324, 2.5], 400),
+    np.arange(5000) * 0.001,                                         # all distinct: cast directly
+    np.arange(5000) % 3 - 1,
+])
+def test_value_text_is_arrows_cast_of_every_value(values):
+    import pyarrow.compute as pc
+
+    from pipeline.ingest.mcap_bulk import value_text
+    assert value_text(values).equals(pc.cast(pa.array(values), pa.string()))
+
+
+def test_signals_in_many_row_groups_read_back_exactly_and_write_the_same_bytes_twice(tmp_path):
+    df = _frame()
+    for k in (1, 2):
+        write_signals(run_paths(tmp_path / f"p{k}", "r"), df, row_group_rows=4)
+    first, second = (tmp_path / f"p{k}" / "r" / "signals.parquet" for k in (1, 2))
+    assert pq.ParquetFile(first).metadata.num_row_groups == 2
+    assert first.read_bytes() == second.read_bytes()
+    table = pq.read_table(first)
+    assert table.schema.field("theta_rad").metadata[b"unit"] == b"rad"
+    pd.testing.assert_frame_equal(table.to_pandas(), df)
