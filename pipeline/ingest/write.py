@@ -27,15 +27,17 @@ CHANNEL_GROUPS = {
 
 # Parquet encoding per column, chosen by measured cost (encode CPU + bytes written) per million rows;
 # fixed so re-runs give identical bytes.  Times and the ACS712 voltage are regular in their bytes:
-# byte-stream split + snappy stores t_s/t_raw in ~0.6 MB of 8 for ~10 ms.  line and counts step by
-# small amounts: delta-packed to ~0.4 MB.  segment, dir, mode (int8/int32 stored as 4-byte INT32)
-# shrink 20x under snappy for ~4 ms.  theta_rad, adc, current_a stay plain: compressing them costs more
-# time than writing their bytes.  Against snappy + dictionaries everywhere (the first choice):
-# 2x faster (~75 vs ~160 ms), about the same size (24 vs 22 MB).  Min/max statistics (~1 ms per column)
-# only on the columns a reader selects rows by: time, line, segment.
-_SPLIT, _DELTA, _PLAIN = "BYTE_STREAM_SPLIT", "DELTA_BINARY_PACKED", "PLAIN"
-PARQUET_ENCODING = {"t_s": (_SPLIT, "snappy"), "t_raw": (_SPLIT, "snappy"), "line": (_DELTA, "none"),
-                    "segment": (_PLAIN, "snappy"), "counts": (_DELTA, "none"), "theta_rad": (_PLAIN, "none"),
+# byte-stream split + snappy stores t_s/t_raw in ~0.6 MB of 8 for ~5 ms.  line and counts step by
+# small amounts: byte-stream split + LZ4 stores line in 0.06 MB and a rig's
+# smooth counts in ~0.2 MB (a random walk's in ~1 MB) for ~4 ms each, where delta packing is a little
+# smaller but takes ~7 ms.  segment, dir, mode (int8/int32 stored as 4-byte INT32) shrink 20x under
+# snappy for ~1 ms each.  theta_rad, adc, current_a stay plain: compressing them costs more time than
+# writing their bytes.  No dictionaries (hashing every value costs more than it saves here).  Against
+# snappy + dictionaries everywhere (the first choice): ~40 vs ~160 ms, about the same size (25 vs 22 MB).
+# Min/max statistics (~1 ms per column) only on the columns a reader selects rows by: time, line, segment.
+_SPLIT, _PLAIN = "BYTE_STREAM_SPLIT", "PLAIN"
+PARQUET_ENCODING = {"t_s": (_SPLIT, "snappy"), "t_raw": (_SPLIT, "snappy"), "line": (_SPLIT, "lz4"),
+                    "segment": (_PLAIN, "snappy"), "counts": (_SPLIT, "lz4"), "theta_rad": (_PLAIN, "none"),
                     "adc": (_PLAIN, "none"), "current_v": (_SPLIT, "snappy"), "current_a": (_PLAIN, "none"),
                     "dir": (_PLAIN, "snappy"), "mode": (_PLAIN, "snappy")}
 PARQUET_OPTIONS = {"use_dictionary": False,
