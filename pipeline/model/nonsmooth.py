@@ -36,8 +36,7 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit, types
-from numba.typed import Dict
+from numba import njit
 
 from pipeline.model.effects import PlantSpec
 from pipeline.model.kernels import TIME_EPS, decide
@@ -46,6 +45,9 @@ from pipeline.model.modal import (ModalData, coefficients, event_function, first
                                   step_matrices, zero_of_derivative)
 
 MAX_ZERO_LENGTH_EVENTS = 50
+# Step lengths kept per regime, and one-off lengths remembered (to spot the second use of one).
+STEP_CAPACITY = 64
+REQUEST_CAPACITY = 256
 # Steps shorter than this [s] are advanced without event detection (x' * 1e-12 s is far below any tolerance).
 MIN_EVENT_STEP = 1e-12
 
@@ -58,18 +60,21 @@ LA, RA, KT, J, B, R, KD, TC, GAP, DB, MAX_STEP = range(11)
 class Plant(NamedTuple):
     """What ``advance`` carries between calls: constants, regime (z, s) and the step-matrix caches.
 
-    ``steps[r]`` maps a rounded step length to its (Phi, Psi) in regime r
-    (0: inside the play, 1: springs engaged); ``requested[r]`` holds lengths
-    asked for once -- only a length used again earns its matrices.
+    Per regime r (0: inside the play, 1: springs engaged) ``step_keys``/
+    ``step_mats`` hold (Phi, Psi) by rounded step length; ``requested`` holds
+    lengths asked for once, in a ring -- only a length used again earns its
+    matrices.  Small arrays searched in order: a run has a few lengths that
+    repeat (the sample spacings and their subdivisions) among one-off ones
+    that end at events.
     """
 
     p: np.ndarray            # LA, RA, KT, J, B, R, KD, TC, GAP, DB, MAX_STEP
     md: ModalData
     zs: np.ndarray           # [z, s]
-    steps0: Dict
-    steps1: Dict
-    requested0: Dict
-    requested1: Dict
+    step_keys: np.ndarray    # (2, STEP_CAPACITY)
+    step_mats: np.ndarray    # (2, STEP_CAPACITY, 18)
+    requested: np.ndarray    # (2, REQUEST_CAPACITY)
+    counts: np.ndarray       # [steps in regime 0, in regime 1, requests in 0, in 1]
 
 
 def plant_constants(spec: PlantSpec) -> tuple[np.ndarray, ModalData]:
@@ -89,11 +94,8 @@ def plant_constants(spec: PlantSpec) -> tuple[np.ndarray, ModalData]:
 
 @njit(cache=True)
 def new_plant(p: np.ndarray, md: ModalData) -> Plant:
-    return Plant(p, md, np.array([1, 1], dtype=np.int64),
-                 Dict.empty(key_type=types.float64, value_type=types.float64[::1]),
-                 Dict.empty(key_type=types.float64, value_type=types.float64[::1]),
-                 Dict.empty(key_type=types.float64, value_type=types.boolean),
-                 Dict.empty(key_type=types.float64, value_type=types.boolean))
+    return Plant(p, md, np.array([1, 1], dtype=np.int64), np.empty((2, STEP_CAPACITY)),
+                 np.empty((2, STEP_CAPACITY, 18)), np.empty((2, REQUEST_CAPACITY)), np.zeros(4, dtype=np.int64))
 
 
 def make_plant(spec: PlantSpec) -> Plant:
@@ -133,26 +135,37 @@ def reset(pl: Plant, x: tuple[float, float, float]) -> None:
 
 
 @njit(cache=True)
-def cached_step(pl: Plant, r: int, key: float):
-    """(Phi, Psi) of regime r for a rounded length if already built, else an empty array."""
-    steps = pl.steps1 if r else pl.steps0
-    if key in steps:
-        return steps[key]
-    return np.empty(0)
+def _find(keys: np.ndarray, n: int, key: float) -> int:
+    for i in range(n):
+        if keys[i] == key:
+            return i
+    return -1
 
 
 @njit(cache=True)
-def step_for(pl: Plant, r: int, key: float, build_on_first: bool):
-    """(Phi, Psi) for a rounded length: built on its second request (or at once), else empty (use the closed form)."""
-    steps = pl.steps1 if r else pl.steps0
-    if key in steps:
-        return steps[key]
-    requested = pl.requested1 if r else pl.requested0
-    if not build_on_first and key not in requested:
-        requested[key] = True
-        return np.empty(0)
+def cached_step(pl: Plant, r: int, key: float) -> np.ndarray:
+    """(Phi, Psi) of regime r for a rounded length if already built, else an empty array."""
+    i = _find(pl.step_keys[r], min(pl.counts[r], STEP_CAPACITY), key)
+    return pl.step_mats[r, i] if i >= 0 else np.empty(0)
+
+
+@njit(cache=True)
+def step_for(pl: Plant, r: int, key: float) -> np.ndarray:
+    """(Phi, Psi) for a rounded length from its second request on, else empty (use the closed form)."""
+    PS = cached_step(pl, r, key)
+    if len(PS):
+        return PS
+    n_req = pl.counts[2 + r]
+    if _find(pl.requested[r], min(n_req, REQUEST_CAPACITY), key) < 0:
+        pl.requested[r, n_req % REQUEST_CAPACITY] = key
+        pl.counts[2 + r] = n_req + 1
+        return PS
     PS = step_matrices(pl.md, r, key)
-    steps[key] = PS
+    n = pl.counts[r]
+    if n < STEP_CAPACITY:                     # beyond that, repeated lengths are rebuilt each time (still exact)
+        pl.step_keys[r, n] = key
+        pl.step_mats[r, n] = PS
+        pl.counts[r] = n + 1
     return PS
 
 
@@ -383,7 +396,7 @@ def _slip(pl: Plant, x, u: float, L: float, guard_mode: int, guard_rad: float):
     # c: input, Coulomb torque against the motion, spring offset outside the play
     c0 = u / p[LA]
     c1 = (z * p[KD] * p[DB] - p[TC] * pl.zs[1]) / p[J]
-    PS = step_for(pl, r, step_key(L), False)
+    PS = step_for(pl, r, step_key(L))
     have_coeffs = len(PS) == 0
     if have_coeffs:                           # a one-off length: closed form, no matrices
         y0, d = coefficients(pl.md, r, x[0], x[1], x[2], c0, c1, 0.0)
