@@ -198,15 +198,19 @@ def write_overview(target: Path, title: str, kin: pd.DataFrame, sims: dict[str, 
 
 
 def warm_up() -> None:
-    """Build the figure and draw the background a run of the default rig needs.
+    """Build the figure, draw the background a run of the default rig needs, and load the model's kernels.
 
     ``pdr run`` calls this in its forkserver, before any worker is forked, so
-    every worker starts with a ready figure, loaded fonts and the background of
-    a typical run (the paper's rig, closed loop, 24.95 s) instead of paying
-    ~1 s on its first run.  Matplotlib with Agg starts no threads: safe to fork.
+    every worker starts with a ready figure, loaded fonts, the background of a
+    typical run (the paper's rig, 24.95 s) and the compiled simulation kernels
+    of both ways of validation (closed loop and replay of a logged command),
+    instead of paying for them on its first run (numba loads each kernel from
+    its cache, or compiles it when the cache is cold: seconds, once per worker).
+    Matplotlib with Agg starts no threads: safe to fork.
     """
     from pipeline.config import default_config
     from pipeline.model.simulate import simulate
+    from pipeline.validate.compare import simulate_both
 
     spec = default_config().plant_spec()
     sim = simulate(spec, duration=24.95)
@@ -214,5 +218,5 @@ def warm_up() -> None:
     # the current axis, are higher than the model's.
     noise = 5.0 / 1024 / 0.185 * np.random.default_rng(0).standard_normal(len(sim.t))
     kin = pd.DataFrame({"t_s": sim.t, "theta_rad": sim.theta, "omega_rad_s": sim.omega,
-                        "current_a": sim.current_measured + noise})
-    overview_png("warm-up", kin, {"closed_loop": sim, "replay": sim}, spec.guard_rad)
+                        "current_a": sim.current_measured + noise, "dir": sim.dir})
+    overview_png("warm-up", kin, simulate_both(spec, kin), spec.guard_rad)
