@@ -79,7 +79,7 @@ def plain_layout(data: bytes, columns: ColumnsConfig, source: str) -> PlainLayou
     return PlainLayout(header, body_start, layout, len(names), notes)
 
 
-def _read_typed(rows: bytes, lay: PlainLayout) -> dict[str, np.ndarray] | None:
+def _read_typed(rows: memoryview, lay: PlainLayout) -> dict[str, np.ndarray] | None:
     """The layout's columns of ``rows`` read by Arrow (t_raw float64, the others int64); None if any field fails."""
     col_names = [f"f{j}" for j in range(lay.width)]
     wanted = {col_names[j]: (logical, pa.float64() if logical == "t_raw" else pa.int64())
@@ -95,21 +95,25 @@ def _read_typed(rows: bytes, lay: PlainLayout) -> dict[str, np.ndarray] | None:
     return {wanted[k][0]: table.column(k).to_numpy() for k in wanted}
 
 
-def read_plain_rows(rows: bytes, lay: PlainLayout) -> dict[str, np.ndarray] | None:
-    """Whole plain lines -> raw columns (t_raw float64, the others int64); None when any line is not plain.
+def read_plain_rows(data: bytes, lay: PlainLayout) -> dict[str, np.ndarray] | None:
+    """The rows of a capture (from ``lay.body_start``) -> raw columns (t_raw float64, the others int64);
+    None when any line is not plain.
 
     Plain: every byte a digit, comma, sign, point or line break, no blank lines,
     every row has ``lay.width`` fields, every field converts, time never goes back.
     The byte checks run while Arrow reads (it releases the GIL, and its reader
-    leaves part of the second core idle), so they cost little wall time.
+    leaves part of the second core idle), so they cost little wall time; the rows
+    are read in place (a memoryview), not copied out of the capture.
     """
+    rows = memoryview(data)[lay.body_start:]
     if not rows:
         return None
     with ThreadPoolExecutor(max_workers=1) as pool:
         reading = pool.submit(_read_typed, rows, lay)
+        # bytes.translate deletes the plain bytes: what is left must be the header's own letters
+        plain = len(data.translate(None, _PLAIN)) == len(data[:lay.body_start].translate(None, _PLAIN))
         # one row per line feed: Arrow skips blank lines (also a lone "\r\n") and splits on a stray "\r",
         # so any of those shows as a count mismatch (a numpy count is ~10x cheaper than `b"\n\n" in data`)
-        plain = not rows.translate(None, _PLAIN)
         lines = np.count_nonzero(np.frombuffer(rows, dtype=np.uint8) == 10) if plain else 0
         values = reading.result()
     if not plain or values is None:
@@ -129,7 +133,7 @@ def parse_plain(data: bytes, columns: ColumnsConfig, source: str) -> ParsedFile 
     lines it cannot read.
     """
     lay = plain_layout(data, columns, source)
-    values = read_plain_rows(data[lay.body_start:], lay) if lay else None
+    values = read_plain_rows(data, lay) if lay else None
     if values is None:
         return None
     n = len(values["t_raw"])
