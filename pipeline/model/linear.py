@@ -24,6 +24,8 @@ from numba import njit
 # Lengths closer than this share a cache entry: millis() spacing differences carry
 # ~1e-15 s of float noise, far below any physical effect.
 KEY_DECIMALS = 12
+# More distinct spacings than this in one recording: no sharing of step matrices between steps.
+MAX_DISTINCT_LENGTHS = 64
 
 
 @njit(cache=True)
@@ -88,11 +90,31 @@ def step_lengths(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The distinct rounded step lengths of instants ``t`` and, per step, the index of its length.
 
     Shared by every parameter set of a batch: the exponentials are then one per
-    (set, distinct length), ~2 per set for a millis() recording.
+    (set, distinct length), ~2 per set for a millis() recording.  Found by a
+    search through the few lengths met so far (a sort would cost seconds of JIT
+    compile); instants with more than MAX_DISTINCT_LENGTHS different spacings
+    get one exponential per step instead, which stays linear in the samples.
     """
     n = max(len(t) - 1, 0)
-    keys = np.empty(n)
+    lengths = np.empty(n)
+    idx = np.empty(n, dtype=np.int64)
+    found = 0
+    last = -1
     for k in range(n):
-        keys[k] = step_key(t[k + 1] - t[k])
-    lengths = np.unique(keys)
-    return lengths, np.searchsorted(lengths, keys)
+        key = step_key(t[k + 1] - t[k])
+        if last >= 0 and lengths[last] == key:          # the common case: the previous spacing again
+            idx[k] = last
+            continue
+        j = 0
+        while j < found and lengths[j] != key:
+            j += 1
+        if j == found:
+            if found == MAX_DISTINCT_LENGTHS:
+                for q in range(n):
+                    lengths[q] = step_key(t[q + 1] - t[q])
+                    idx[q] = q
+                return lengths, idx
+            lengths[found] = key
+            found += 1
+        idx[k] = last = j
+    return lengths[:found], idx

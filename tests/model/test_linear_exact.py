@@ -96,3 +96,25 @@ def test_next_dir_is_the_sketch_rule():
 def test_bad_arguments_are_refused_by_name(spec, kwargs, key):
     with pytest.raises(PdrError, match=key):
         simulate(spec, **kwargs)
+
+
+def test_step_lengths_are_the_rounded_spacings_shared_by_index():
+    from pipeline.model.linear import MAX_DISTINCT_LENGTHS, step_key, step_lengths
+    t = jittered_times(300, seed=7)
+    lengths, idx = step_lengths(t)
+    assert len(lengths) == 2                              # 50 and 51 ms, float noise rounded away
+    np.testing.assert_array_equal(lengths[idx], [step_key(h) for h in np.diff(t)])
+    # more distinct spacings than the search keeps: one length per step, still each step's own
+    rng = np.random.default_rng(8)
+    t = np.concatenate([[0.0], np.cumsum(rng.uniform(0.04, 0.06, 3 * MAX_DISTINCT_LENGTHS))])
+    lengths, idx = step_lengths(t)
+    assert len(lengths) == len(t) - 1
+    np.testing.assert_array_equal(lengths[idx], [step_key(h) for h in np.diff(t)])
+
+
+def test_many_distinct_spacings_match_solve_ivp(spec):
+    rng = np.random.default_rng(9)
+    t = np.concatenate([[0.0], np.cumsum(rng.uniform(0.04, 0.06, 150))])
+    _close(simulate(spec, t), simulate_ivp(spec, t))
+    s = replace(spec, Td=0.03)
+    _close(simulate(s, t), simulate_ivp(s, t))
