@@ -141,3 +141,16 @@ def test_random_effect_mixes_and_initial_states_match_reference_plant(seed):
     x0 = (float(rng.uniform(-0.2, 0.2)), float(rng.uniform(-1, 1)), float(rng.uniform(-0.03, 0.03)))
     guard = ("sampled", "continuous")[seed % 2]
     _close(simulate(spec, t, x0=x0, guard=guard), simulate_reference(spec, t, x0=x0, guard=guard))
+
+
+def test_more_step_lengths_than_the_caches_hold_match_reference_plant():
+    # 100 distinct spacings, each used several times: more than STEP_CAPACITY repeated lengths
+    # and more than REQUEST_CAPACITY one-off ones, so both caches overflow and wrap
+    from pipeline.model.nonsmooth import REQUEST_CAPACITY, STEP_CAPACITY
+    rng = np.random.default_rng(12)
+    spacings = rng.uniform(0.045, 0.055, 100)
+    assert len(spacings) > STEP_CAPACITY
+    t = np.concatenate([[0.0], np.cumsum(np.tile(spacings, 5))])
+    assert len(t) > REQUEST_CAPACITY
+    spec = replace(BASE, **CASES["all_together"])
+    _close(simulate(spec, t), simulate_reference(spec, t))
