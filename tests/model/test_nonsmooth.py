@@ -144,13 +144,12 @@ def test_random_effect_mixes_and_initial_states_match_reference_plant(seed):
 
 
 def test_more_step_lengths_than_the_caches_hold_match_reference_plant():
-    # 100 distinct spacings, each used several times: more than STEP_CAPACITY repeated lengths
-    # and more than REQUEST_CAPACITY one-off ones, so both caches overflow and wrap
+    # 300 distinct spacings, each used twice: more repeated lengths than STEP_CAPACITY and more
+    # first uses than REQUEST_CAPACITY, so the step cache fills up and the request ring wraps
     from pipeline.model.nonsmooth import REQUEST_CAPACITY, STEP_CAPACITY
     rng = np.random.default_rng(12)
-    spacings = rng.uniform(0.045, 0.055, 100)
-    assert len(spacings) > STEP_CAPACITY
-    t = np.concatenate([[0.0], np.cumsum(np.tile(spacings, 5))])
-    assert len(t) > REQUEST_CAPACITY
+    spacings = rng.uniform(0.045, 0.055, 300)
+    assert len(spacings) > max(STEP_CAPACITY, REQUEST_CAPACITY)
+    t = np.concatenate([[0.0], np.cumsum(np.tile(spacings, 2))])
     spec = replace(BASE, **CASES["all_together"])
     _close(simulate(spec, t), simulate_reference(spec, t))
