@@ -14,6 +14,7 @@ Non-smooth specs (Tc, gap) or the continuous guard fall back to a loop of
 from __future__ import annotations
 
 from dataclasses import dataclass
+from operator import attrgetter
 from typing import Sequence
 
 import numpy as np
@@ -80,17 +81,20 @@ def _stack(t: np.ndarray, runs: list[SimResult], specs: list[PlantSpec]) -> Batc
 
 def _run_linear_batch(specs: list[PlantSpec], plan, x0: np.ndarray) -> BatchResult:
     """Every set through the single call's compiled automaton (``kernels.run_linear_batch``)."""
-    A, B = stacked_state_matrices([s.params for s in specs])
-    R = np.array([s.params.R for s in specs], dtype=float)
-    guard = np.array([s.guard_rad for s in specs], dtype=float)
-    V = np.array([s.v_drive for s in specs], dtype=float)
-    Td = np.array([s.Td for s in specs], dtype=float)
-    I0 = np.array([s.I0 for s in specs], dtype=float)
+    params = [s.params for s in specs]
+    A, B = stacked_state_matrices(params)
+    R = _column(params, "R")
+    guard, V, Td, I0 = (_column(specs, name) for name in ("guard_rad", "v_drive", "Td", "I0"))
     current, omega, delta, theta, dirs = linear_outputs(len(specs), len(plan.t))
     run_linear_batch(plan.t, A, B, R, guard, V, Td, x0, plan.log, plan.closed_loop, plan.start, plan.first,
                      plan.dir0, current, omega, delta, theta, dirs)
     return BatchResult(t=plan.t, theta=theta, omega=omega, current=current, delta=delta, dir=dirs,
                        v_drive=V, I0=I0)
+
+
+def _column(objs: list, name: str) -> np.ndarray:
+    """One float attribute of every object as an array (C-level getter and fill: ~1/3 of a list comprehension)."""
+    return np.fromiter(map(attrgetter(name), objs), float, len(objs))
 
 
 def stacked_state_matrices(params: list) -> tuple[np.ndarray, np.ndarray]:
@@ -99,8 +103,7 @@ def stacked_state_matrices(params: list) -> tuple[np.ndarray, np.ndarray]:
     Built from parameter columns in a handful of array operations; a thousand
     separate 3x3 constructions cost more than the simulation they feed.
     """
-    col = {name: np.array([getattr(p, name) for p in params], dtype=float)
-           for name in ("R", "J", "Ke", "Kt", "La", "Ra", "K1", "K2", "b")}
+    col = {name: _column(params, name) for name in ("R", "J", "Ke", "Kt", "La", "Ra", "K1", "K2", "b")}
     m = len(params)
     A = np.zeros((m, 3, 3))
     A[:, 0, 0] = -col["Ra"] / col["La"]                                   # (2)
