@@ -130,12 +130,14 @@ def _delayed(t, P, idx, A, B, R, guard, V, Td, x0, log, closed_loop, start, firs
         j = idx[k]
         u0 = u_m
         e0 = e1 = e2 = 0.0
+        changed = False
         while head < tail and arrive[head] < t_next - TIME_EPS:
             du = volts[head] - u_m
             u_m = volts[head]
             a = arrive[head] - tk
             head += 1
             if du != 0.0:                            # a change at a inside the step: Gamma(h - a) du
+                changed = True
                 if a <= TIME_EPS:
                     e0 += P[j, 9] * du
                     e1 += P[j, 10] * du
@@ -155,9 +157,14 @@ def _delayed(t, P, idx, A, B, R, guard, V, Td, x0, log, closed_loop, start, firs
                     e0 += split_gamma[c, 0] * du
                     e1 += split_gamma[c, 1] * du
                     e2 += split_gamma[c, 2] * du
-        I, w, dl = (P[j, 0] * I + P[j, 1] * w + P[j, 2] * dl + P[j, 9] * u0 + e0,
-                    P[j, 3] * I + P[j, 4] * w + P[j, 5] * dl + P[j, 10] * u0 + e1,
-                    P[j, 6] * I + P[j, 7] * w + P[j, 8] * dl + P[j, 11] * u0 + e2)
+        if changed:
+            I, w, dl = (P[j, 0] * I + P[j, 1] * w + P[j, 2] * dl + P[j, 9] * u0 + e0,
+                        P[j, 3] * I + P[j, 4] * w + P[j, 5] * dl + P[j, 10] * u0 + e1,
+                        P[j, 6] * I + P[j, 7] * w + P[j, 8] * dl + P[j, 11] * u0 + e2)
+        else:                                        # most steps: adding e = 0 would only lengthen the chain
+            I, w, dl = (P[j, 0] * I + P[j, 1] * w + P[j, 2] * dl + P[j, 9] * u0,
+                        P[j, 3] * I + P[j, 4] * w + P[j, 5] * dl + P[j, 10] * u0,
+                        P[j, 6] * I + P[j, 7] * w + P[j, 8] * dl + P[j, 11] * u0)
 
 
 def linear_outputs(m: int, n: int) -> tuple[np.ndarray, ...]:
