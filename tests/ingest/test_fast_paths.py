@@ -100,13 +100,16 @@ def test_write_signals_refuses_a_bad_table_and_leaves_nothing(tmp_path):
     assert not list(tmp_path.rglob("*.parquet")) and not list(tmp_path.rglob("*.tmp"))
 
 
-def test_threaded_parquet_write_gives_the_pure_cores_tables_and_report(tmp_path):
+@pytest.mark.parametrize("capture", [CLEAN, CLEAN + CLEAN])        # one run; a reset: two runs
+def test_threaded_parquet_write_gives_the_pure_cores_tables_and_report(tmp_path, capture):
     cfg = default_config()
-    runs, report = ingest_capture(CLEAN, cfg, "rec.csv", "rec")
-    runs2, report2, paths = ingest_signals(CLEAN, cfg, "rec.csv", "rec", tmp_path)
+    runs, report = ingest_capture(capture, cfg, "rec.csv", "rec")
+    runs2, report2, paths = ingest_signals(capture, cfg, "rec.csv", "rec", tmp_path)
     assert json.dumps(report2, sort_keys=True) == json.dumps(report, sort_keys=True)
     assert [r.report for r in runs2] == [r.report for r in runs]
-    assert pq.read_table(paths[0].signals).to_pandas().equals(runs[0].signals)
+    assert len(paths) == len(runs) == len(capture.split(b"t_ms")) - 1
+    for run, path in zip(runs, paths):
+        assert pq.read_table(path.signals).to_pandas().equals(run.signals)
 
 
 @pytest.mark.parametrize("body", [
