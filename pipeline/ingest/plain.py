@@ -2,7 +2,7 @@
 
 Most captures written by a sketch straight to a file (or by ``pdr rig``) are
 plain: one header, rows of numbers, nothing else.  For those the whole parse
-is multi-threaded Arrow CSV reads; anything unusual sends the capture to
+is one multi-threaded Arrow CSV read; anything unusual sends the capture to
 the general path (``pipeline.ingest.parse.parse_capture``), which reads line by
 line (still vectorised) and reports every line it cannot read.
 """
@@ -40,7 +40,7 @@ class PlainLayout:
         """1-based line number of the first row."""
         return 2 if self.header else 1
 
-    def segment(self, values: dict[str, np.ndarray], line: np.ndarray) -> ParsedFile:
+    def parsed(self, values: dict[str, np.ndarray], line: np.ndarray) -> ParsedFile:
         """The parsed file of a plain capture: one segment, nothing quarantined."""
         n = len(line)
         seg = Segment(index=0, header_line=1 if self.header else None, layout=self.layout, width=self.width,
@@ -137,4 +137,4 @@ def parse_plain(data: bytes, columns: ColumnsConfig, source: str) -> ParsedFile 
     if values is None:
         return None
     n = len(values["t_raw"])
-    return lay.segment(values, np.arange(lay.first_line, lay.first_line + n, dtype=np.int64))
+    return lay.parsed(values, np.arange(lay.first_line, lay.first_line + n, dtype=np.int64))
