@@ -96,7 +96,9 @@ def _plan(spec: PlantSpec, t, duration: float, dir0: int, dir_log, closed_loop: 
         raise PdrError("expected a non-empty, finite, non-decreasing array of sample instants", key="t")
     if dir0 not in (-1, 1):
         raise PdrError(f"expected dir0 = 1 or -1, got {dir0!r}", key="dir0")
-    t = np.ascontiguousarray(t)                # the kernels take contiguous arrays
+    # The kernels' own copy, contiguous and writable: numba compiles a separate version per array layout
+    # and per read-only flag (pandas 3 hands out read-only arrays), each ~10 s and a cache entry.
+    t = np.array(t, dtype=float, order="C")
     if dir_log is None:
         if not closed_loop:
             raise PdrError("replay (closed_loop=False) needs the logged command", key="dir_log")
