@@ -21,7 +21,7 @@ import numpy as np
 
 from pipeline.errors import PdrError
 from pipeline.model.effects import PlantSpec
-from pipeline.model.kernels import linear_outputs, run_linear_batch
+from pipeline.model.kernels import lane_outputs, linear_outputs, run_linear_batch, run_linear_lanes
 from pipeline.model.simulate import SimResult, _plan, simulate
 
 
@@ -85,6 +85,11 @@ def _run_linear_batch(specs: list[PlantSpec], plan, x0: np.ndarray) -> BatchResu
     A, B = stacked_state_matrices(params)
     R = _column(params, "R")
     guard, V, Td, I0 = (_column(specs, name) for name in ("guard_rad", "v_drive", "Td", "I0"))
+    if plan.closed_loop and not Td.any():
+        Y = lane_outputs(len(specs), len(plan.t))
+        run_linear_lanes(plan.t, A, B, R, guard, V, x0, plan.log, plan.start, plan.first, plan.dir0, Y)
+        return BatchResult(t=plan.t, theta=Y[3].T, omega=Y[1].T, current=Y[0].T, delta=Y[2].T,
+                           dir=Y[4].astype(np.int8).T, v_drive=V, I0=I0)
     current, omega, delta, theta, dirs = linear_outputs(len(specs), len(plan.t))
     run_linear_batch(plan.t, A, B, R, guard, V, Td, x0, plan.log, plan.closed_loop, plan.start, plan.first,
                      plan.dir0, current, omega, delta, theta, dirs)

@@ -106,3 +106,20 @@ def test_batch_is_the_single_call_to_the_last_bit():
             r = simulate(s, T, **kw)
             for f in FIELDS + ("dir",):
                 assert np.array_equal(getattr(batch, f)[i], getattr(r, f)), f
+
+
+def test_undelayed_closed_loop_lanes_are_the_single_call_to_the_last_bit():
+    # all sets without loop delay, closed loop: the lanes kernel (sets side by side, vectorised) runs them;
+    # 23 sets leave a remainder after the 4-wide vectors, the log's leading zeros a stretch before the guard
+    specs = [replace(s, Td=0.0) for s in _linear_sets(n=23, seed=7)]
+    log = simulate(BASE, T).dir.copy()
+    log[:5] = 0
+    for kw in ({}, {"dir_log": log, "x0": (0.01, 0.2, 0.003)}, {"dir0": -1}):
+        batch = simulate_batch(specs, T, **kw)
+        assert batch.dir.dtype == np.int8
+        for i, s in enumerate(specs):
+            r = simulate(s, T, **kw)
+            for f in FIELDS + ("dir",):
+                assert np.array_equal(getattr(batch, f)[i], getattr(r, f)), f
+            assert np.array_equal(batch.result(i).theta, r.theta)
+    assert len({int(np.sum(np.diff(batch.dir[i]) != 0)) for i in range(len(specs))}) > 1
