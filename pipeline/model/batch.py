@@ -30,13 +30,18 @@ class BatchResult:
     """Signals at the sample instants, one row per parameter set: arrays shaped (n_sets, n_samples)."""
 
     t: np.ndarray
-    theta: np.ndarray
     omega: np.ndarray
     current: np.ndarray
     delta: np.ndarray
     dir: np.ndarray
     v_drive: np.ndarray          # (n_sets,) V   |u| of each set
     I0: np.ndarray               # (n_sets,) A   current sensor offset of each set
+    R: np.ndarray                # (n_sets,) m   pinion radius of each set
+
+    @property
+    def theta(self) -> np.ndarray:
+        """delta / R (eq. 7), formed when asked for: the kernels' own division, so the same bits."""
+        return self.delta / self.R[:, None]
 
     @property
     def current_measured(self) -> np.ndarray:
@@ -47,11 +52,11 @@ class BatchResult:
         return self.dir * self.v_drive[:, None]
 
     def __len__(self) -> int:
-        return self.theta.shape[0]
+        return self.delta.shape[0]
 
     def result(self, i: int) -> SimResult:
         """Set ``i`` as a ``SimResult`` (what ``simulate`` would have returned)."""
-        return SimResult(t=self.t, theta=self.theta[i], omega=self.omega[i], current=self.current[i],
+        return SimResult(t=self.t, theta=self.delta[i] / self.R[i], omega=self.omega[i], current=self.current[i],
                          current_measured=self.current[i] + self.I0[i], delta=self.delta[i], dir=self.dir[i],
                          u=self.dir[i] * self.v_drive[i])
 
@@ -74,9 +79,9 @@ def simulate_batch(specs: Sequence[PlantSpec], t: np.ndarray | None = None, *, d
 
 
 def _stack(t: np.ndarray, runs: list[SimResult], specs: list[PlantSpec]) -> BatchResult:
-    return BatchResult(t=t, **{f: np.stack([getattr(r, f) for r in runs])
-                               for f in ("theta", "omega", "current", "delta", "dir")},
-                       v_drive=np.array([s.v_drive for s in specs]), I0=np.array([s.I0 for s in specs]))
+    return BatchResult(t=t, **{f: np.stack([getattr(r, f) for r in runs]) for f in ("omega", "current", "delta", "dir")},
+                       v_drive=np.array([s.v_drive for s in specs]), I0=np.array([s.I0 for s in specs]),
+                       R=np.array([s.params.R for s in specs]))
 
 
 def _run_linear_batch(specs: list[PlantSpec], plan, x0: np.ndarray) -> BatchResult:
@@ -86,15 +91,13 @@ def _run_linear_batch(specs: list[PlantSpec], plan, x0: np.ndarray) -> BatchResu
     R = _column(params, "R")
     guard, V, Td, I0 = (_column(specs, name) for name in ("guard_rad", "v_drive", "Td", "I0"))
     if plan.closed_loop and not Td.any():
-        Y = lane_outputs(len(specs), len(plan.t))
-        run_linear_lanes(plan.t, A, B, R, guard, V, x0, plan.log, plan.start, plan.first, plan.dir0, Y)
-        return BatchResult(t=plan.t, theta=Y[3].T, omega=Y[1].T, current=Y[0].T, delta=Y[2].T,
-                           dir=Y[4].astype(np.int8).T, v_drive=V, I0=I0)
+        Y, dirs = lane_outputs(len(specs), len(plan.t))
+        run_linear_lanes(plan.t, A, B, R, guard, V, x0, plan.log, plan.start, plan.first, plan.dir0, Y, dirs)
+        return BatchResult(t=plan.t, omega=Y[1].T, current=Y[0].T, delta=Y[2].T, dir=dirs.T, v_drive=V, I0=I0, R=R)
     current, omega, delta, theta, dirs = linear_outputs(len(specs), len(plan.t))
     run_linear_batch(plan.t, A, B, R, guard, V, Td, x0, plan.log, plan.closed_loop, plan.start, plan.first,
                      plan.dir0, current, omega, delta, theta, dirs)
-    return BatchResult(t=plan.t, theta=theta, omega=omega, current=current, delta=delta, dir=dirs,
-                       v_drive=V, I0=I0)
+    return BatchResult(t=plan.t, omega=omega, current=current, delta=delta, dir=dirs, v_drive=V, I0=I0, R=R)
 
 
 def _column(objs: list, name: str) -> np.ndarray:

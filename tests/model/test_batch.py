@@ -123,3 +123,14 @@ def test_undelayed_closed_loop_lanes_are_the_single_call_to_the_last_bit():
                 assert np.array_equal(getattr(batch, f)[i], getattr(r, f)), f
             assert np.array_equal(batch.result(i).theta, r.theta)
     assert len({int(np.sum(np.diff(batch.dir[i]) != 0)) for i in range(len(specs))}) > 1
+
+
+def test_guard_threshold_is_the_least_delta_reaching_the_guard():
+    # the lanes decide by d * delta >= threshold instead of d * (delta / R) >= guard: the same answer always
+    from pipeline.model.kernels import guard_threshold
+    rng = np.random.default_rng(8)
+    for R, g in zip(rng.uniform(1e-3, 5e-2, 300), rng.uniform(0.1, 3.0, 300)):
+        x = guard_threshold(R, g)
+        assert x / R >= g and np.nextafter(x, -np.inf) / R < g
+        for dl in x + np.arange(-40, 41) * np.spacing(x):
+            assert (dl / R >= g) == (dl >= x) and (-dl / R <= -g) == (-(-dl) >= x)
