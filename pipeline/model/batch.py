@@ -2,13 +2,18 @@
 
 For linear plants (viscous friction, driver drop, rack inertia, spring scale,
 loop delay and sensor offset -- everything but Coulomb friction and backlash)
-the m sets run through the compiled automaton ``kernels.run_linear_batch``,
-the very loop ``simulate`` runs for one set, in one call: per set one matrix
-exponential per distinct step length, then the per-sample steps.  The batch
-saves the ~55 us of Python around each single call (argument checks, kernel
-dispatch, result packaging), so it equals m single calls to the last bit.
-Non-smooth specs (Tc, gap) or the continuous guard fall back to a loop of
-``simulate`` calls.
+the m sets run through compiled kernels in one call, per set one matrix
+exponential per distinct step length, then the per-sample steps:
+
+- closed loop without loop delay (the common fit): ``kernels.run_linear_lanes``,
+  the sets side by side (sample loop outside, sets inside, vectorised), with
+  the single call's arithmetic per set, so equal to it to the last bit (tested);
+- otherwise ``kernels.run_linear_batch``, the very loop ``simulate`` runs for
+  one set, set after set.
+
+The batch saves the ~55 us of Python around each single call (argument checks,
+kernel dispatch, result packaging).  Non-smooth specs (Tc, gap) or the
+continuous guard fall back to a loop of ``simulate`` calls.
 """
 
 from __future__ import annotations
@@ -85,7 +90,7 @@ def _stack(t: np.ndarray, runs: list[SimResult], specs: list[PlantSpec]) -> Batc
 
 
 def _run_linear_batch(specs: list[PlantSpec], plan, x0: np.ndarray) -> BatchResult:
-    """Every set through the single call's compiled automaton (``kernels.run_linear_batch``)."""
+    """Every set through a compiled automaton: side by side when undelayed and closed loop, else one by one."""
     params = [s.params for s in specs]
     A, B = stacked_state_matrices(params)
     R = _column(params, "R")

@@ -201,7 +201,7 @@ def run_linear_lanes(t, A, B, R, guard, V, x0, log, start, first, dir0, Y, dirs)
     """
     lengths, idx = step_lengths(t)
     m = len(R)
-    # Per length the step matrices and then R, guard, V: one array keeps the lane loop's alias checks few.
+    # Per length the step matrices, then the guard threshold, guard, V: one array keeps the alias checks few.
     PR = np.empty((len(lengths), 15, m))
     Pq = np.empty(12)
     for q in range(m):
@@ -215,10 +215,10 @@ def run_linear_lanes(t, A, B, R, guard, V, x0, log, start, first, dir0, Y, dirs)
         Y[0, 0, q], Y[1, 0, q], Y[2, 0, q], dirs[0, q] = x0[0], x0[1], x0[2], dq
     for k in range(1, len(t)):
         j = idx[k - 1]
-        if k > start:
-            _lanes_step(PR, j, k, Y, dirs, m)
-        else:
-            _lanes_step_before(PR, j, k, Y, dirs, R, log, start, first, dir0)
+        _lanes_step(PR, j, k, Y, dirs, m)
+        if k <= start:                                 # the log still rules, or the controller's first decision
+            for q in range(m):
+                dirs[k, q] = decide(k, int(dirs[k - 1, q]), Y[2, k, q] / R[q], guard[q], log, True, start, first, dir0)
 
 
 @njit(cache=True, error_model="numpy")
@@ -232,19 +232,6 @@ def _lanes_step(PR, j, k, Y, dirs, m) -> None:
         wn = PR[j, 3, q] * I + PR[j, 4, q] * w + PR[j, 5, q] * dl + PR[j, 10, q] * u
         dn = PR[j, 6, q] * I + PR[j, 7, q] * w + PR[j, 8, q] * dl + PR[j, 11, q] * u
         dirs[k, q] = -dq if dq * dn >= PR[j, 12, q] else dq
-        Y[0, k, q], Y[1, k, q], Y[2, k, q] = In, wn, dn
-
-
-@njit(cache=True)
-def _lanes_step_before(PR, j, k, Y, dirs, R, log, start, first, dir0) -> None:
-    """``_lanes_step`` while the log still rules (k <= start): the command by ``decide``."""
-    for q in range(len(R)):
-        I, w, dl, dq = Y[0, k - 1, q], Y[1, k - 1, q], Y[2, k - 1, q], float(dirs[k - 1, q])
-        u = dq * PR[j, 14, q]
-        In = PR[j, 0, q] * I + PR[j, 1, q] * w + PR[j, 2, q] * dl + PR[j, 9, q] * u
-        wn = PR[j, 3, q] * I + PR[j, 4, q] * w + PR[j, 5, q] * dl + PR[j, 10, q] * u
-        dn = PR[j, 6, q] * I + PR[j, 7, q] * w + PR[j, 8, q] * dl + PR[j, 11, q] * u
-        dirs[k, q] = decide(k, int(dq), dn / R[q], PR[j, 13, q], log, True, start, first, dir0)
         Y[0, k, q], Y[1, k, q], Y[2, k, q] = In, wn, dn
 
 
