@@ -108,9 +108,10 @@ class TableSchema:
             values = s.to_numpy()[~null]
             if col.type.startswith(("int", "float")) and len(values):
                 values = values.astype(float)
-                if col.type.startswith("int") and np.any(values != np.round(values)):
+                if col.type.startswith("int") and not np.all(np.isfinite(values) & (values == np.round(values))):
+                    full = s.to_numpy(dtype=float, na_value=0.0)
                     raise SchemaError(f"{prefix}column '{col.name}' has non-integer values at rows "
-                                      f"{_rows(np.asarray(s.to_numpy(dtype=float, na_value=0)) % 1 != 0)}; rule: {col.type}")
+                                      f"{_rows(~np.isfinite(full) | (full != np.round(full)))}; rule: {col.type}")
                 if col.type.startswith("float") and not np.all(np.isfinite(values)):
                     bad = ~np.isfinite(s.to_numpy(dtype=float, na_value=0.0))
                     raise SchemaError(f"{prefix}column '{col.name}' has non-finite values at rows {_rows(bad)}")

@@ -58,3 +58,12 @@ def test_json_schema_lists_only_present_columns_with_units():
 def test_violations_name_column_rows_and_rule(mutate, message):
     with pytest.raises(SchemaError, match=message):
         load_schema("signals").check(mutate(signals_frame()), "run1")
+
+
+
+def test_an_infinite_value_in_an_integer_column_is_refused_as_non_integer():
+    schema = load_schema("phases")
+    df = pd.DataFrame({c.name: [c.allowed[0] if c.allowed else (c.min or 0)] * 3 for c in schema.columns})
+    df["n_samples"] = np.array([10.0, np.inf, 3.0])
+    with pytest.raises(SchemaError, match=r"'n_samples' has non-integer values at rows 1; rule: int64"):
+        schema.check(df)
