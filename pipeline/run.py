@@ -52,7 +52,7 @@ PACKAGE_ROOT = Path(__file__).resolve().parent
 SCHEMA_ROOT = PACKAGE_ROOT.parent / "schemas"
 STAGES = ("ingest", "derive", "validate")
 # Imported once in the forkserver, inherited by every worker.
-PRELOAD = ["numpy", "pandas", "pyarrow.parquet", "rerun", "matplotlib.figure",
+PRELOAD = ["numpy", "pandas", "pyarrow.parquet", "rerun", "matplotlib.figure", "pipeline.run",
            "pipeline.ingest.stage", "pipeline.derive.stage", "pipeline.validate.stage",
            "pipeline.validate.rerun_log", "pipeline.validate.warmup"]
 
