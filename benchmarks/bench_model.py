@@ -12,7 +12,7 @@
 
 Every ``simulate`` call starts cold (its step matrices are built inside the
 call), so the figures include that set-up.  The compiled kernels (numba) are
-warmed first (``warm_jit``: one call of every path timed here), so no ratio
+warmed first (``pipeline.model.compile.compile_kernels``: one call of every compiled path), so no ratio
 includes a JIT compile or a load from numba's cache; those one-off costs are
 reported separately on the first line.  Both sides of every ratio are the
 best of a few repeats (the machine is shared; a single pass of the slow side
@@ -26,7 +26,6 @@ hold at once only while it is >= 20,000.  Run: python -m benchmarks.bench_model
 
 from __future__ import annotations
 
-import time
 from dataclasses import replace
 
 import numpy as np
@@ -34,6 +33,7 @@ import numpy as np
 from benchmarks.bench_rig import best_of
 from pipeline.config import default_config
 from pipeline.model.batch import simulate_batch
+from pipeline.model.compile import compile_kernels
 from pipeline.model.effects import (Backlash, CoulombFriction, CurrentSensorOffset, DriverVoltageDrop, LoopDelay,
                                     RackInertia, SpringStiffness, ViscousFriction, build_spec)
 from pipeline.model.simulate import simulate
@@ -117,24 +117,9 @@ def bench_every_effect(t: np.ndarray) -> float:
     return ratio
 
 
-def warm_jit(t: np.ndarray) -> float:
-    """Call every compiled path once (compile, or load from numba's on-disk cache); returns the seconds it took."""
-    start = time.perf_counter()
-    spec = default_config().plant_spec()
-    log = simulate(spec, t).dir
-    delayed = parameter_sets(2, True)
-    simulate(delayed[0], t)
-    simulate(delayed[0], t, dir_log=log, closed_loop=False)
-    simulate_batch(parameter_sets(2, False), t)
-    simulate_batch(delayed, t)
-    simulate_batch(delayed, t, dir_log=log, closed_loop=False)
-    simulate(every_effect(), t)
-    return time.perf_counter() - start
-
-
 def main() -> None:
     t = jittered_times(500, seed=0)
-    print(f"JIT warm-up (compile or load from cache, not in any figure): {warm_jit(t):.2f} s")
+    print(f"JIT warm-up (compile or load from cache, not in any figure): {compile_kernels():.2f} s")
     linear = bench_linear(t)
     batch = bench_batch(t)
     bench_every_effect(t)
