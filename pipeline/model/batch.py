@@ -26,6 +26,7 @@ import numpy as np
 
 from pipeline.errors import PdrError
 from pipeline.model.effects import PlantSpec
+from pipeline.model.params import MATRIX_PARAMS, state_matrices_of
 from pipeline.model.kernels import lane_outputs, linear_outputs, run_linear_batch, run_linear_lanes
 from pipeline.model.simulate import SimResult, _plan, simulate
 
@@ -99,9 +100,9 @@ def _run_linear_batch(specs: list[PlantSpec], plan, x0: np.ndarray) -> BatchResu
         Y, dirs = lane_outputs(len(specs), len(plan.t))
         run_linear_lanes(plan.t, A, B, R, guard, V, x0, plan.log, plan.start, plan.first, plan.dir0, Y, dirs)
         return BatchResult(t=plan.t, omega=Y[1].T, current=Y[0].T, delta=Y[2].T, dir=dirs.T, v_drive=V, I0=I0, R=R)
-    current, omega, delta, theta, dirs = linear_outputs(len(specs), len(plan.t))
+    current, omega, delta, dirs = linear_outputs(len(specs), len(plan.t))
     run_linear_batch(plan.t, A, B, R, guard, V, Td, x0, plan.log, plan.closed_loop, plan.start, plan.first,
-                     plan.dir0, current, omega, delta, theta, dirs)
+                     plan.dir0, current, omega, delta, dirs)
     return BatchResult(t=plan.t, omega=omega, current=current, delta=delta, dir=dirs, v_drive=V, I0=I0, R=R)
 
 
@@ -111,20 +112,9 @@ def _column(objs: list, name: str) -> np.ndarray:
 
 
 def stacked_state_matrices(params: list) -> tuple[np.ndarray, np.ndarray]:
-    """``ModelParams.state_matrices`` for many sets at once: A (m, 3, 3), B (m, 3) (eqs. 2, 4/8, 5).
+    """``ModelParams.state_matrices`` for many sets at once: A (m, 3, 3), B (m, 3).
 
-    Built from parameter columns in a handful of array operations; a thousand
-    separate 3x3 constructions cost more than the simulation they feed.
+    The same formula (``params.state_matrices_of``) on parameter columns: a
+    thousand separate 3x3 constructions cost more than the simulation they feed.
     """
-    col = {name: _column(params, name) for name in ("R", "J", "Ke", "Kt", "La", "Ra", "K1", "K2", "b")}
-    m = len(params)
-    A = np.zeros((m, 3, 3))
-    A[:, 0, 0] = -col["Ra"] / col["La"]                                   # (2)
-    A[:, 0, 1] = -col["Ke"] / col["La"]
-    A[:, 1, 0] = col["Kt"] / col["J"]                                     # (4), (8)
-    A[:, 1, 1] = -col["b"] / col["J"]
-    A[:, 1, 2] = -col["R"] * (col["K1"] + col["K2"]) / col["J"]
-    A[:, 2, 1] = col["R"]                                                 # (5)
-    B = np.zeros((m, 3))
-    B[:, 0] = 1.0 / col["La"]
-    return A, B
+    return state_matrices_of(**{name: _column(params, name) for name in MATRIX_PARAMS})

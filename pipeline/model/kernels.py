@@ -53,11 +53,12 @@ def decide(k: int, d_prev: int, theta: float, guard: float, log: np.ndarray, clo
 
 @njit(cache=True)
 def run_linear_batch(t, A, B, R, guard, V, Td, x0, log, closed_loop, start, first, dir0,
-                     current, omega, delta, theta, dirs) -> None:
-    """The automaton for m parameter sets at the instants ``t``: fills current, omega, delta, theta, dirs (m, n).
+                     current, omega, delta, dirs) -> None:
+    """The automaton for m parameter sets at the instants ``t``: fills current, omega, delta, dirs (m, n).
 
     A (m, 3, 3), B (m, 3); R, guard, V, Td (m,).  ``simulate`` is the case m = 1.
     The sets share the instants, hence the distinct step lengths (``step_lengths``).
+    theta = delta / R (eq. 7) is the caller's, as for every kernel.
     """
     lengths, idx = step_lengths(t)
     P = np.empty((len(lengths), 12))
@@ -66,36 +67,35 @@ def run_linear_batch(t, A, B, R, guard, V, Td, x0, log, closed_loop, start, firs
             phi_gamma_into(A[i], B[i], lengths[j], P[j])
         if closed_loop and Td[i] == 0.0:
             _undelayed(t, P, idx, R[i], guard[i], V[i], x0, log, start, first, dir0,
-                       current[i], omega[i], delta[i], theta[i], dirs[i])
+                       current[i], omega[i], delta[i], dirs[i])
         else:
             _delayed(t, P, idx, A[i], B[i], R[i], guard[i], V[i], Td[i], x0, log, closed_loop, start, first, dir0,
-                     current[i], omega[i], delta[i], theta[i], dirs[i])
+                     current[i], omega[i], delta[i], dirs[i])
 
 
 @njit(cache=True)
-def _undelayed(t, P, idx, R, guard, V, x0, log, start, first, dir0, current, omega, delta, theta, dirs) -> None:
+def _undelayed(t, P, idx, R, guard, V, x0, log, start, first, dir0, current, omega, delta, dirs) -> None:
     """The hot path (closed loop, no loop delay): the command acts at once, u = d * v_drive."""
     n = len(t)
     I, w, dl = x0[0], x0[1], x0[2]
     d = decide(0, 0, dl / R, guard, log, True, start, first, dir0)
     u = d * V
-    current[0], omega[0], delta[0], theta[0], dirs[0] = I, w, dl, dl / R, d
+    current[0], omega[0], delta[0], dirs[0] = I, w, dl, d
     for k in range(1, n):
         j = idx[k - 1]                  # indexing P[j, .] directly: a row view would cost a refcount per step
         I, w, dl = (P[j, 0] * I + P[j, 1] * w + P[j, 2] * dl + P[j, 9] * u,
                     P[j, 3] * I + P[j, 4] * w + P[j, 5] * dl + P[j, 10] * u,
                     P[j, 6] * I + P[j, 7] * w + P[j, 8] * dl + P[j, 11] * u)
-        th = dl / R
-        dn = decide(k, d, th, guard, log, True, start, first, dir0)
+        dn = decide(k, d, dl / R, guard, log, True, start, first, dir0)
         if dn != d:
             d = dn
             u = d * V
-        current[k], omega[k], delta[k], theta[k], dirs[k] = I, w, dl, th, d
+        current[k], omega[k], delta[k], dirs[k] = I, w, dl, d
 
 
 @njit(cache=True)
 def _delayed(t, P, idx, A, B, R, guard, V, Td, x0, log, closed_loop, start, first, dir0,
-             current, omega, delta, theta, dirs) -> None:
+             current, omega, delta, dirs) -> None:
     """Any plan with a loop delay: x+ = Phi(h) x + Gamma(h) u0 + sum over motor changes at a of Gamma(h - a) du.
 
     A command decided at t_k reaches the motor at t_k + Td; the arrivals are in
@@ -114,9 +114,8 @@ def _delayed(t, P, idx, A, B, R, guard, V, Td, x0, log, closed_loop, start, firs
     d = 0
     u_m = 0.0                                        # motor voltage; off until the first command
     for k in range(n):
-        th = dl / R
-        current[k], omega[k], delta[k], theta[k] = I, w, dl, th
-        dn = decide(k, d, th, guard, log, closed_loop, start, first, dir0)
+        current[k], omega[k], delta[k] = I, w, dl
+        dn = decide(k, d, dl / R, guard, log, closed_loop, start, first, dir0)
         if dn != d or k == 0:
             arrive[tail] = t[k] + Td
             volts[tail] = dn * V
@@ -236,14 +235,14 @@ def _lanes_step(PR, j, k, Y, dirs, m) -> None:
 
 
 def linear_outputs(m: int, n: int) -> tuple[np.ndarray, ...]:
-    """Output arrays for ``run_linear_batch``: current, omega, delta, theta (m, n) float, dirs (m, n) int8.
+    """Output arrays for ``run_linear_batch``: current, omega, delta (m, n) float, dirs (m, n) int8.
 
-    The four float arrays are views of one block: numpy backs a block this size
-    with huge pages, where four separate 4 MB arrays (1000 x 500) take a page
+    The three float arrays are views of one block: numpy backs a block this size
+    with huge pages, where separate 4 MB arrays (1000 x 500) take a page
     fault per 4 KiB on first write -- more time than the simulation on this VM.
     """
-    block = np.empty((4, m, n))
-    return block[0], block[1], block[2], block[3], np.empty((m, n), dtype=np.int8)
+    block = np.empty((3, m, n))
+    return block[0], block[1], block[2], np.empty((m, n), dtype=np.int8)
 
 
 def lane_outputs(m: int, n: int) -> tuple[np.ndarray, np.ndarray]:

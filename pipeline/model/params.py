@@ -54,14 +54,25 @@ class ModelParams:
 
     def state_matrices(self) -> tuple[np.ndarray, np.ndarray]:
         """A, B of eq. (8) for x = [I, w, delta] (eq. (6) when b = 0)."""
-        p = self
-        A = np.array([
-            [-p.Ra / p.La, -p.Ke / p.La, 0.0],                       # (2)
-            [p.Kt / p.J, -p.b / p.J, -p.R * (p.K1 + p.K2) / p.J],    # (4), (8)
-            [0.0, p.R, 0.0],                                         # (5)
-        ])
-        B = np.array([1.0 / p.La, 0.0, 0.0])
-        return A, B
+        return state_matrices_of(self.R, self.J, self.Ke, self.Kt, self.La, self.Ra, self.K1, self.K2, self.b)
+
+
+# The parameters A and B are made of, and the one place their formula is written.
+MATRIX_PARAMS = ("R", "J", "Ke", "Kt", "La", "Ra", "K1", "K2", "b")
+
+
+def state_matrices_of(R, J, Ke, Kt, La, Ra, K1, K2, b) -> tuple[np.ndarray, np.ndarray]:
+    """A, B of eq. (8) from scalars (3 x 3, 3) or from equal-length parameter columns (m x 3 x 3, m x 3)."""
+    a00, a01 = -Ra / La, -Ke / La                                 # (2)
+    a10, a11, a12 = Kt / J, -b / J, -R * (K1 + K2) / J            # (4), (8)
+    a21, b0 = R, 1.0 / La                                         # (5), (2)
+    if not isinstance(La, np.ndarray):                            # one set: what every single simulate builds
+        return np.array([[a00, a01, 0.0], [a10, a11, a12], [0.0, a21, 0.0]]), np.array([b0, 0.0, 0.0])
+    A = np.zeros((len(La), 3, 3))
+    A[:, 0, 0], A[:, 0, 1], A[:, 1, 0], A[:, 1, 1], A[:, 1, 2], A[:, 2, 1] = a00, a01, a10, a11, a12, a21
+    B = np.zeros((len(La), 3))
+    B[:, 0] = b0
+    return A, B
 
 
 @dataclass(frozen=True)

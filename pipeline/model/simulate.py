@@ -138,12 +138,12 @@ def simulate(spec: PlantSpec, t: np.ndarray | None = None, *, duration: float = 
 def _run_linear(spec: PlantSpec, plan: _Plan, x: np.ndarray) -> SimResult:
     """Exact ZOH stepping in the compiled kernel (``kernels.run_linear_batch`` with one set)."""
     A, B = spec.params.state_matrices()
-    current, omega, delta, theta, dirs = linear_outputs(1, len(plan.t))
+    current, omega, delta, dirs = linear_outputs(1, len(plan.t))
     run_linear_batch(plan.t, A[None], B[None], np.array([spec.params.R], dtype=float),
                      np.array([spec.guard_rad], dtype=float), np.array([spec.v_drive], dtype=float),
                      np.array([spec.Td], dtype=float), x, plan.log, plan.closed_loop, plan.start, plan.first,
-                     plan.dir0, current, omega, delta, theta, dirs)
-    return _result(spec, plan.t, current[0], omega[0], delta[0], theta[0], dirs[0])
+                     plan.dir0, current, omega, delta, dirs)
+    return _result(spec, plan.t, current[0], omega[0], delta[0], dirs[0])
 
 
 def _run_events(spec: PlantSpec, plan: _Plan, x: np.ndarray, *, continuous: bool) -> SimResult:
@@ -154,10 +154,11 @@ def _run_events(spec: PlantSpec, plan: _Plan, x: np.ndarray, *, continuous: bool
     run_events(plan.t, *plant_constants(spec), float(spec.params.R), float(spec.guard_rad), float(spec.v_drive),
                float(spec.Td), x, plan.log, plan.closed_loop, plan.start, plan.first, plan.dir0, continuous,
                current, omega, delta, dirs)
-    return _result(spec, plan.t, current, omega, delta, delta / spec.params.R, dirs)
+    return _result(spec, plan.t, current, omega, delta, dirs)
 
 
-def _result(spec: PlantSpec, t, current, omega, delta, theta, dirs) -> SimResult:
-    """Package a kernel's outputs; I0 only touches the measured current, u is the command's voltage."""
-    return SimResult(t=t, theta=theta, omega=omega, current=current, current_measured=current + spec.I0,
+def _result(spec: PlantSpec, t, current, omega, delta, dirs) -> SimResult:
+    """Package a kernel's outputs: theta = delta / R (eq. 7, the division the kernels decide with, so the
+    same bits); I0 only touches the measured current, u is the command's voltage."""
+    return SimResult(t=t, theta=delta / spec.params.R, omega=omega, current=current, current_measured=current + spec.I0,
                      delta=delta, dir=dirs, u=dirs * float(spec.v_drive))
