@@ -20,8 +20,10 @@ is what keeps a 500-sample run to a few milliseconds of logging.
 
 from __future__ import annotations
 
+import functools
 import shutil
 import subprocess
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -90,19 +92,33 @@ def _measured(kin: pd.DataFrame, column: str) -> np.ndarray | None:
     return kin[column].to_numpy(dtype=float, na_value=np.nan)
 
 
-def _scalars(rec, path: str, t: np.ndarray, values: np.ndarray, name: str, color, width: float = 1.5) -> None:
+@functools.lru_cache(maxsize=None)
+def _series_style(kind: str, name: str, color, width: float = 1.5, marker: str = ""):
+    """A series' static style, built once per process: the same few styles recur in every run,
+    and building one is ~0.2 ms of rerun's Python converters."""
+    import rerun as rr
+
+    if kind == "points":
+        return rr.SeriesPoints(names=name, colors=[color], markers=marker, marker_sizes=4.0)
+    return rr.SeriesLines(names=name, colors=[color], widths=width)
+
+
+def _scalars(rec, path: str, t: np.ndarray, values: np.ndarray, name: str, color, width: float = 1.5,
+             time_column=None) -> None:
+    """One time series; ``time_column``: ``t`` as a ``TimeColumn`` already, shared by a run's series."""
     import rerun as rr
 
     ok = np.isfinite(values)
-    rec.log(path, rr.SeriesLines(names=name, colors=[color], widths=width), static=True)
-    rec.send_columns(path, indexes=[rr.TimeColumn(TIMELINE, duration=t[ok])],
-                     columns=rr.Scalars.columns(scalars=values[ok]))
+    rec.log(path, _series_style("lines", name, color, width), static=True)
+    if time_column is None or not ok.all():
+        time_column, values = rr.TimeColumn(TIMELINE, duration=t[ok]), values[ok]
+    rec.send_columns(path, indexes=[time_column], columns=rr.Scalars.columns(scalars=values))
 
 
 def _points(rec, path: str, t: np.ndarray, values: np.ndarray, name: str, color, marker: str) -> None:
     import rerun as rr
 
-    rec.log(path, rr.SeriesPoints(names=name, colors=[color], markers=marker, marker_sizes=4.0), static=True)
+    rec.log(path, _series_style("points", name, color, marker=marker), static=True)
     if len(t):
         rec.send_columns(path, indexes=[rr.TimeColumn(TIMELINE, duration=t)],
                          columns=rr.Scalars.columns(scalars=values))
@@ -239,17 +255,18 @@ def log_run(rec, name: str, kin: pd.DataFrame, sims: dict[str, SimResult], valid
     import rerun as rr
 
     t = kin["t_s"].to_numpy(dtype=float)
+    every = rr.TimeColumn(TIMELINE, duration=t)
     d = logged_dir(kin)
     for sig, (column, field, _unit) in SIGNALS.items():
         meas = _measured(kin, column)
         if meas is not None:
-            _scalars(rec, f"signals/{sig}/measured", t, meas, "measured", MEASURED, 2.0)
+            _scalars(rec, f"signals/{sig}/measured", t, meas, "measured", MEASURED, 2.0, every)
         for way in ("closed_loop", "replay"):
             sim_v = getattr(sims[way], field)
-            _scalars(rec, f"signals/{sig}/{way}", t, sim_v, way.replace("_", " "), SERIES[way])
+            _scalars(rec, f"signals/{sig}/{way}", t, sim_v, way.replace("_", " "), SERIES[way], time_column=every)
             if meas is not None:
                 _scalars(rec, f"residuals/{sig}/{way}", t, meas - sim_v, f"measured - {way.replace('_', ' ')}",
-                         SERIES[way])
+                         SERIES[way], time_column=every)
     ends = t[[0, -1]]          # a guard is a straight line: its two ends are enough
     _scalars(rec, "signals/theta/guard_upper", ends, np.full(2, guard), "+guard", GUARD, 1.0)
     _scalars(rec, "signals/theta/guard_lower", ends, np.full(2, -guard), "-guard", GUARD, 1.0)
@@ -267,6 +284,49 @@ def log_run(rec, name: str, kin: pd.DataFrame, sims: dict[str, SimResult], valid
     _trajectory(rec, kin, sims, guard)
     rec.log("stats", rr.TextDocument(stats_markdown(name, validation, derived),
                                      media_type=rr.MediaType.MARKDOWN), static=True)
+
+
+@functools.lru_cache(maxsize=1)
+def _blueprint_chunks():
+    """The chunks of ``blueprint()``, built once per process and kept in memory.
+
+    ``RecordingStream.save(path, default_blueprint=...)`` rebuilds the
+    blueprint on every call: 36 archetypes through rerun's Python converters,
+    ~10 ms per ``.rrd``.  The blueprint is the same for every run, so it is
+    logged once into a file of its own and its chunks are read back; each
+    ``.rrd`` then gets a copy of them (~4 ms).  Not in the forkserver: saving
+    starts rerun's threads, and a process must not fork after that.
+    """
+    import rerun as rr
+    from rerun.chunk import RrdReader
+
+    with tempfile.TemporaryDirectory(prefix="pdr-blueprint-") as folder:
+        path = Path(folder) / "blueprint.rrd"
+        rec = rr.RecordingStream("pdr", recording_id="blueprint")
+        rec.save(path, default_blueprint=blueprint())
+        rec.flush()
+        rec.disconnect()
+        reader = RrdReader(path)
+        return reader.store(store=reader.blueprints()[0]).stream().collect()
+
+
+def _save_with_blueprint(rec, path: Path) -> None:
+    """``rec.save(path, default_blueprint=blueprint())`` from the cached chunks.
+
+    What ``rerun.sinks.save`` does, with the blueprint stream filled by
+    ``send_chunks`` instead of by logging the blueprint again (rerun-sdk is
+    pinned: ``rerun_bindings.new_blueprint`` and ``save`` are its internals).
+    The tests read the blueprint back from the file and open it in the viewer.
+    """
+    import rerun as rr
+    import rerun_bindings as bindings
+    from rerun.recording_stream import RecordingStream
+
+    stream = RecordingStream._from_native(bindings.new_blueprint(
+        application_id="pdr", make_default=False, make_thread_default=False, default_enabled=True))
+    rr.send_chunks(_blueprint_chunks(), recording=stream)
+    bindings.save(path=str(path), default_blueprint=stream.memory_recording().storage,
+                  recording=rec.to_native(), write_footer=True)
 
 
 def rerun_executable() -> str:
@@ -328,7 +388,7 @@ def write_rrd(target: Path, name: str, kin: pd.DataFrame, sims: dict[str, SimRes
 
     with atomic_path(Path(target)) as tmp:
         rec = rr.RecordingStream("pdr", recording_id=name)
-        rec.save(tmp, default_blueprint=blueprint())
+        _save_with_blueprint(rec, tmp)
         log_run(rec, name, kin, sims, validation, guard, derived)
         rec.flush()
         rec.disconnect()
