@@ -4,8 +4,9 @@
 each sample the sketch's controller decides (the log before it starts, then
 the sampled guard), the command reaches the motor ``Td`` later, and the state
 moves by the exact step matrices of ``pipeline.model.linear``.  ``simulate``
-calls it with one parameter set, ``simulate_batch`` with m, so the batch is
-the single call's arithmetic, not a second copy of the physics that could drift.
+calls it with one parameter set; ``simulate_batch`` runs the same steps laid out
+in lanes (``pipeline.model.lanes``: the sets side by side, this module's
+``decide`` and the same sums in the same order), tested equal to the last bit.
 
 Plain float arithmetic in a compiled loop: CPython spent ~1 us per sample on
 it, this spends a few ns.  The order of every sum is the one the Python loops
@@ -166,74 +167,6 @@ def _delayed(t, P, idx, A, B, R, guard, V, Td, x0, log, closed_loop, start, firs
                         P[j, 6] * I + P[j, 7] * w + P[j, 8] * dl + P[j, 11] * u0)
 
 
-@njit(cache=True)
-def guard_threshold(R: float, guard: float) -> float:
-    """The least delta with delta / R >= guard in floating point (R, guard > 0).
-
-    Division rounds monotonically, so for a command d = +-1 the sampled guard
-    d * (delta / R) >= guard holds exactly when d * delta >= this threshold:
-    the lanes decide without dividing, and theta = delta / R is formed only
-    when asked for, with the same bits.
-    """
-    x = guard * R
-    while x / R >= guard:
-        x = np.nextafter(x, -np.inf)
-    while x / R < guard:
-        x = np.nextafter(x, np.inf)
-    return x
-
-
-@njit(cache=True)
-def run_linear_lanes(t, A, B, R, guard, V, x0, log, start, first, dir0, Y, dirs) -> None:
-    """Closed loop without loop delay for m sets side by side: fills Y = (current, omega, delta) (3, n, m)
-    and dirs (n, m); theta = delta / R is left to the caller (``guard_threshold``).
-
-    The same automaton as ``run_linear_batch`` (``_undelayed``), laid out for
-    many sets: sample k outside, the sets inside, so each set's chain of
-    multiply-adds waits on its own previous sample while the other sets fill
-    the pipeline, and LLVM turns the set loop into AVX arithmetic.  Past
-    ``start`` the command is +-1 and ``next_dir`` is a sign flip when
-    d * theta >= guard, i.e. d * delta >= ``guard_threshold`` (negation is
-    exact): a select, not a branch, and no division.  Per set
-    the operations and their order are the single call's, so the results are
-    the same to the last bit (tests/model/test_batch.py).
-    """
-    lengths, idx = step_lengths(t)
-    m = len(R)
-    # Per length the step matrices, then the guard threshold, guard, V: one array keeps the alias checks few.
-    PR = np.empty((len(lengths), 15, m))
-    Pq = np.empty(12)
-    for q in range(m):
-        for j in range(len(lengths)):                  # one exponential per distinct length
-            phi_gamma_into(A[q], B[q], lengths[j], Pq)
-            PR[j, :12, q] = Pq
-            PR[j, 12, q], PR[j, 13, q], PR[j, 14, q] = guard_threshold(R[q], guard[q]), guard[q], V[q]
-    for q in range(m):
-        th = x0[2] / R[q]
-        dq = decide(0, 0, th, guard[q], log, True, start, first, dir0)
-        Y[0, 0, q], Y[1, 0, q], Y[2, 0, q], dirs[0, q] = x0[0], x0[1], x0[2], dq
-    for k in range(1, len(t)):
-        j = idx[k - 1]
-        _lanes_step(PR, j, k, Y, dirs, m)
-        if k <= start:                                 # the log still rules, or the controller's first decision
-            for q in range(m):
-                dirs[k, q] = decide(k, int(dirs[k - 1, q]), Y[2, k, q] / R[q], guard[q], log, True, start, first, dir0)
-
-
-@njit(cache=True, error_model="numpy")
-def _lanes_step(PR, j, k, Y, dirs, m) -> None:
-    """Every set from sample k - 1 to k, then its command by the sampled guard (unsigned indices: no
-    negative-index fix-up, so the loop vectorises)."""
-    for q in range(np.uint64(0), np.uint64(m)):
-        I, w, dl, dq = Y[0, k - 1, q], Y[1, k - 1, q], Y[2, k - 1, q], float(dirs[k - 1, q])
-        u = dq * PR[j, 14, q]
-        In = PR[j, 0, q] * I + PR[j, 1, q] * w + PR[j, 2, q] * dl + PR[j, 9, q] * u
-        wn = PR[j, 3, q] * I + PR[j, 4, q] * w + PR[j, 5, q] * dl + PR[j, 10, q] * u
-        dn = PR[j, 6, q] * I + PR[j, 7, q] * w + PR[j, 8, q] * dl + PR[j, 11, q] * u
-        dirs[k, q] = -dq if dq * dn >= PR[j, 12, q] else dq
-        Y[0, k, q], Y[1, k, q], Y[2, k, q] = In, wn, dn
-
-
 def linear_outputs(m: int, n: int) -> tuple[np.ndarray, ...]:
     """Output arrays for ``run_linear_batch``: current, omega, delta (m, n) float, dirs (m, n) int8.
 
@@ -244,7 +177,3 @@ def linear_outputs(m: int, n: int) -> tuple[np.ndarray, ...]:
     block = np.empty((3, m, n))
     return block[0], block[1], block[2], np.empty((m, n), dtype=np.int8)
 
-
-def lane_outputs(m: int, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """Outputs for ``run_linear_lanes``: current, omega, delta as one (3, n, m) block (huge pages), dirs (n, m) int8."""
-    return np.empty((3, n, m)), np.empty((n, m), dtype=np.int8)

@@ -7,7 +7,8 @@ import pytest
 
 from pipeline.config import default_config
 from pipeline.errors import PdrError
-from pipeline.model.batch import simulate_batch, stacked_state_matrices
+from pipeline.model.batch import simulate_batch, spec_columns
+from pipeline.model.params import state_matrices_of
 from pipeline.model.simulate import simulate
 from tests.model.ivp_reference import jittered_times
 
@@ -61,9 +62,14 @@ def test_empty_batch_is_refused():
         simulate_batch([], T)
 
 
+def _stacked_state_matrices(specs):
+    return state_matrices_of(*spec_columns(specs)[:9])
+
+
 def test_stacked_state_matrices_are_the_per_set_matrices():
+    # spec_columns reads the parameters in MATRIX_PARAMS order: the stacked A, B are each set's own
     specs = _linear_sets(n=5, seed=3)
-    A, B = stacked_state_matrices([s.params for s in specs])
+    A, B = _stacked_state_matrices(specs)
     for i, s in enumerate(specs):
         a, b = s.params.state_matrices()
         np.testing.assert_array_equal(A[i], a)
@@ -85,7 +91,7 @@ def test_step_matrices_match_scipy_expm():
 
     from pipeline.model.linear import phi_gamma
     specs = _linear_sets(n=6, seed=5)
-    A, B = stacked_state_matrices([s.params for s in specs])
+    A, B = _stacked_state_matrices(specs)
     h = np.array([0.05, 0.051, 0.0, 0.013, 0.2, 0.05])
     for i in range(len(specs)):
         P = phi_gamma(A[i], B[i], h[i])
@@ -127,7 +133,7 @@ def test_undelayed_closed_loop_lanes_are_the_single_call_to_the_last_bit():
 
 def test_guard_threshold_is_the_least_delta_reaching_the_guard():
     # the lanes decide by d * delta >= threshold instead of d * (delta / R) >= guard: the same answer always
-    from pipeline.model.kernels import guard_threshold
+    from pipeline.model.lanes import guard_threshold
     rng = np.random.default_rng(8)
     for R, g in zip(rng.uniform(1e-3, 5e-2, 300), rng.uniform(0.1, 3.0, 300)):
         x = guard_threshold(R, g)

@@ -1,0 +1,286 @@
+"""Many parameter sets side by side (``simulate_batch``): the automaton of ``kernels`` laid out in lanes, compiled.
+
+``kernels.run_linear_batch`` follows one set sample by sample: each step waits
+on the previous one (a chain of multiply-adds), so a thousand sets cost a
+thousand chains.  Here the sample loop is outside and the sets are inside, so
+the sets fill the pipeline and LLVM turns the set loop into AVX arithmetic:
+
+- every set's state moves by its own step matrices with the motor voltage it
+  had at the start of the step (the common part, vectorised);
+- a set whose delayed command reaches its motor inside the step gets the
+  ``kernels._delayed`` correction ``Gamma(h - a) du`` added afterwards (few
+  steps: commands change a few dozen times per recording);
+- the sampled guard past the controller's start is a sign flip when
+  d * delta >= ``guard_threshold`` (no division, a select).
+
+Per set the operations and their order are those of ``kernels`` (the common
+part is the first four terms of its sum, the correction the fifth), so a batch
+equals the single calls to the last bit (tests/model/test_batch.py).
+
+The outputs of 1000 sets x 500 samples are 12 MB: written with ordinary stores
+they cost more than the arithmetic (each line is read before it is written).
+The state lives in a small buffer the caches keep, and each sample's row is
+copied out with non-temporal stores (``stream_copy``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from llvmlite import ir
+from numba import njit, types
+from numba.extending import intrinsic
+from numba.np.arrayobj import make_array
+
+from pipeline.model.kernels import TIME_EPS, decide
+from pipeline.model.linear import phi_gamma_into, step_key, step_lengths
+
+# Gamma(h - a) remembered per set (split lengths of a fixed Td: a few).
+MAX_SPLITS = 8
+# Bytes of one non-temporal store (an AVX register): the alignment it needs.
+STREAM_BYTES = 32
+
+
+@intrinsic
+def _stream4(typingctx, dst, i, src, j):
+    """dst[i:i+4] = src[j:j+4] as one non-temporal 32-byte store (dst + i must be 32-byte aligned)."""
+    sig = types.void(dst, types.intp, src, types.intp)
+
+    def codegen(context, builder, signature, args):
+        d = make_array(signature.args[0])(context, builder, args[0])
+        s = make_array(signature.args[2])(context, builder, args[2])
+        vec = ir.VectorType(ir.DoubleType(), 4)
+        value = builder.load(builder.bitcast(builder.gep(s.data, [args[3]]), vec.as_pointer()), align=8)
+        store = builder.store(value, builder.bitcast(builder.gep(d.data, [args[1]]), vec.as_pointer()),
+                              align=STREAM_BYTES)
+        store.set_metadata("nontemporal", builder.module.add_metadata([ir.Constant(ir.IntType(32), 1)]))
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+@intrinsic
+def _store_fence(typingctx):
+    """Order the non-temporal stores before anything after (they bypass the usual store ordering)."""
+    sig = types.void()
+
+    def codegen(context, builder, signature, args):
+        builder.fence("seq_cst")
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+@njit(cache=True)
+def stream_copy(dst: np.ndarray, start: int, src: np.ndarray) -> None:
+    """dst[start:start + len(src)] = src (1-d float64), the aligned middle by non-temporal stores."""
+    n = len(src)
+    head = min(n, ((-(dst.ctypes.data + 8 * start)) % STREAM_BYTES) // 8)
+    for i in range(head):
+        dst[start + i] = src[i]
+    i = head
+    while i + 4 <= n:
+        _stream4(dst, start + i, src, i)
+        i += 4
+    for r in range(i, n):
+        dst[start + r] = src[r]
+
+
+@njit(cache=True)
+def guard_threshold(R: float, guard: float) -> float:
+    """The least delta with delta / R >= guard in floating point (R, guard > 0).
+
+    Division rounds monotonically, so for a command d = +-1 the sampled guard
+    d * (delta / R) >= guard holds exactly when d * delta >= this threshold:
+    the lanes decide without dividing, and theta = delta / R is formed only
+    when asked for, with the same bits.
+    """
+    x = guard * R
+    while x / R >= guard:
+        x = np.nextafter(x, -np.inf)
+    while x / R < guard:
+        x = np.nextafter(x, np.inf)
+    return x
+
+
+@njit(cache=True, error_model="numpy")
+def _common_step(P, S, d_old, d_new, U, undelayed, V, thr, m) -> None:
+    """Every set one step on: S <- Phi S + Gamma u, u = d V (no loop delay) or the motor's voltage U;
+    d_new = the sampled guard's sign flip (meaningful past the controller's start).
+
+    Unsigned indices (no negative-index fix-up) and a select written as
+    arithmetic (d - 2 d [flip], exact for d = +-1), so the loop vectorises
+    without masked stores.
+    """
+    for q in range(np.uint64(0), np.uint64(m)):
+        I, w, dl, dq = S[0, q], S[1, q], S[2, q], d_old[q]
+        ud, um = dq * V[q], U[q]
+        u = ud if undelayed[q] else um
+        In = P[0, q] * I + P[1, q] * w + P[2, q] * dl + P[9, q] * u
+        wn = P[3, q] * I + P[4, q] * w + P[5, q] * dl + P[10, q] * u
+        dn = P[6, q] * I + P[7, q] * w + P[8, q] * dl + P[11, q] * u
+        S[0, q], S[1, q], S[2, q] = In, wn, dn
+        d_new[q] = dq - 2.0 * dq * (dq * dn >= thr[q])
+
+
+@njit(cache=True)
+def _step_matrices(A, B, lengths) -> np.ndarray:
+    """(Phi, Gamma) of every set for every distinct length, laid out (length, entry, set) for the lanes."""
+    m = A.shape[0]
+    P = np.empty((len(lengths), 12, m))
+    out = np.empty(12)
+    for q in range(m):
+        for j in range(len(lengths)):
+            phi_gamma_into(A[q], B[q], lengths[j], out)
+            P[j, :, q] = out
+    return P
+
+
+@njit(cache=True)
+def _split_gamma(q, key, A, B, keys, gammas, n_split, G) -> int:
+    """The slot of Gamma(key) in set q's cache of split lengths (computed on first use, as ``kernels._delayed``)."""
+    c = 0
+    while c < n_split[q] and keys[q, c] != key:
+        c += 1
+    if c == n_split[q]:
+        if c == MAX_SPLITS:
+            c = n_split[q] = 0
+        phi_gamma_into(A[q], B[q], key, G)
+        keys[q, c] = key
+        gammas[q, c, 0], gammas[q, c, 1], gammas[q, c, 2] = G[9], G[10], G[11]
+        n_split[q] += 1
+    return c
+
+
+@njit(cache=True)
+def _arrivals(j, t, Pj, A, B, S, U, events, head, nxt, keys, gammas, n_split, touched, E, G) -> int:
+    """Commands reaching their motors inside step j (t_j, t_j+1): ``kernels._delayed``'s correction
+    sum of Gamma(h - a) du, added to the common part in S; returns how many sets it moved (``touched[:n]``)."""
+    n_touched = 0
+    e = head[j]
+    while e >= 0:
+        q = int(events[e, 0])
+        du = events[e, 2] - U[q]
+        U[q] = events[e, 2]
+        if du != 0.0:
+            if n_touched == 0 or not _listed(touched, n_touched, q):
+                touched[n_touched] = q
+                n_touched += 1
+                E[0, q] = E[1, q] = E[2, q] = 0.0
+            a = events[e, 1] - t[j]
+            if a <= TIME_EPS:
+                E[0, q] += Pj[9, q] * du
+                E[1, q] += Pj[10, q] * du
+                E[2, q] += Pj[11, q] * du
+            else:
+                c = _split_gamma(q, step_key((t[j + 1] - t[j]) - a), A, B, keys, gammas, n_split, G)
+                E[0, q] += gammas[q, c, 0] * du
+                E[1, q] += gammas[q, c, 1] * du
+                E[2, q] += gammas[q, c, 2] * du
+        e = nxt[e]
+    for i in range(n_touched):
+        q = touched[i]
+        S[0, q], S[1, q], S[2, q] = S[0, q] + E[0, q], S[1, q] + E[1, q], S[2, q] + E[2, q]
+    return n_touched
+
+
+@njit(cache=True)
+def _listed(items, n, x) -> bool:
+    for i in range(n - 1, -1, -1):
+        if items[i] == x:
+            return True
+    return False
+
+
+@njit(cache=True)
+def run_linear_lanes(t, A, B, R, guard, V, Td, x0, log, closed_loop, start, first, dir0, Y, dirs) -> None:
+    """The automaton for m sets side by side: fills Y = (current, omega, delta) (n, 3, m) and dirs (n, m).
+
+    A (m, 3, 3), B (m, 3); R, guard, V, Td (m,); the other arguments as
+    ``kernels.run_linear_batch``.  theta = delta / R is left to the caller.
+    A command of a delayed set decided at t_k reaches its motor at t_k + Td:
+    it is filed under the step it lands in (``head``/``nxt``: one list per
+    step, in decision order) and applied there by ``_arrivals``.
+    """
+    n, m = len(t), len(R)
+    lengths, idx = step_lengths(t)
+    P = _step_matrices(A, B, lengths)
+    thr = np.empty(m)
+    undelayed = np.empty(m, dtype=np.bool_)
+    for q in range(m):
+        thr[q] = guard_threshold(R[q], guard[q])
+        undelayed[q] = closed_loop and Td[q] == 0.0
+    delayed = not undelayed.all()
+    S = np.empty((3, m))
+    d_old, d_new = np.zeros(m), np.empty(m)
+    U = np.zeros(m)                                   # motor voltage of delayed sets: off until a command arrives
+    # commands on their way (set, arrival, volts), listed per step of arrival
+    events = np.empty((4 * m if delayed else 0, 3))
+    head, tail = np.full(n, -1), np.full(n, -1)
+    nxt = np.empty(len(events), dtype=np.int64)
+    n_events = 0
+    keys, gammas, n_split = np.empty((m, MAX_SPLITS)), np.empty((m, MAX_SPLITS, 3)), np.zeros(m, dtype=np.int64)
+    touched, E, G = np.empty(m, dtype=np.int64), np.empty((3, m)), np.empty(12)
+    Yf = Y.reshape(Y.size)
+    Sf = S.reshape(3 * m)
+    for q in range(m):
+        S[0, q], S[1, q], S[2, q] = x0[0], x0[1], x0[2]
+        d_new[q] = decide(0, 0, x0[2] / R[q], guard[q], log, closed_loop, start, first, dir0)
+    for k in range(n):
+        if k > 0:
+            j = idx[k - 1]
+            _common_step(P[j], S, d_old, d_new, U, undelayed, V, thr, m)
+            if delayed:
+                moved = _arrivals(k - 1, t, P[j], A, B, S, U, events, head, nxt, keys, gammas, n_split, touched, E, G)
+                for i in range(moved):                  # re-decide where a correction moved the state
+                    q = touched[i]
+                    d_new[q] = decide(k, int(d_old[q]), S[2, q] / R[q], guard[q], log, closed_loop, start,
+                                      first, dir0)
+            if not closed_loop or k < start:
+                d_new[:] = log[k]
+            elif k == start:
+                for q in range(m):
+                    d_new[q] = decide(k, int(d_old[q]), S[2, q] / R[q], guard[q], log, closed_loop, start,
+                                      first, dir0)
+        if delayed:
+            for q in range(m):
+                if d_new[q] != d_old[q] and not undelayed[q]:
+                    arrive = t[k] + Td[q]
+                    s = k                               # the step the command lands in (none: past the end)
+                    while s < n - 1 and not arrive < t[s + 1] - TIME_EPS:
+                        s += 1
+                    if s == n - 1:
+                        continue
+                    if n_events == len(events):
+                        events, nxt = _grown(events, nxt)
+                    events[n_events, 0], events[n_events, 1], events[n_events, 2] = q, arrive, d_new[q] * V[q]
+                    nxt[n_events] = -1
+                    if head[s] < 0:
+                        head[s] = n_events
+                    else:
+                        nxt[tail[s]] = n_events
+                    tail[s] = n_events
+                    n_events += 1
+        stream_copy(Yf, k * 3 * m, Sf)
+        for q in range(m):
+            dirs[k, q] = np.int8(d_new[q])
+        d_old, d_new = d_new, d_old
+    _store_fence()
+
+
+@njit(cache=True)
+def _grown(events, nxt):
+    more = np.empty((2 * len(events) + 16, 3))
+    more[:len(events)] = events
+    more_nxt = np.empty(len(more), dtype=np.int64)
+    more_nxt[:len(nxt)] = nxt
+    return more, more_nxt
+
+
+def lane_outputs(m: int, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Outputs for ``run_linear_lanes``: current, omega, delta as one (n, 3, m) block whose start is aligned for
+    ``stream_copy`` (numpy backs a block this size with huge pages), dirs (n, m) int8."""
+    size = 3 * m * n
+    pad = STREAM_BYTES // 8
+    buf = np.empty(size + pad)
+    off = (-buf.ctypes.data % STREAM_BYTES) // 8
+    return buf[off:off + size].reshape(n, 3, m), np.empty((n, m), dtype=np.int8)
