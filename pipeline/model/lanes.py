@@ -152,9 +152,10 @@ def _split_gamma(q, key, A, B, keys, gammas, n_split, G) -> int:
 
 
 @njit(cache=True)
-def _arrivals(j, t, Pj, A, B, S, U, events, head, nxt, keys, gammas, n_split, touched, E, G) -> int:
+def _arrivals(j, t, Pj, A, B, S, U, events, head, nxt, keys, gammas, n_split, touched, moved, E, G) -> int:
     """Commands reaching their motors inside step j (t_j, t_j+1): ``kernels._delayed``'s correction
-    sum of Gamma(h - a) du, added to the common part in S; returns how many sets it moved (``touched[:n]``)."""
+    sum of Gamma(h - a) du, added to the common part in S; returns how many sets it moved (``touched[:n]``;
+    ``moved`` is all False again on return)."""
     n_touched = 0
     e = head[j]
     while e >= 0:
@@ -162,7 +163,8 @@ def _arrivals(j, t, Pj, A, B, S, U, events, head, nxt, keys, gammas, n_split, to
         du = events[e, 2] - U[q]
         U[q] = events[e, 2]
         if du != 0.0:
-            if n_touched == 0 or not _listed(touched, n_touched, q):
+            if not moved[q]:
+                moved[q] = True
                 touched[n_touched] = q
                 n_touched += 1
                 E[0, q] = E[1, q] = E[2, q] = 0.0
@@ -179,16 +181,9 @@ def _arrivals(j, t, Pj, A, B, S, U, events, head, nxt, keys, gammas, n_split, to
         e = nxt[e]
     for i in range(n_touched):
         q = touched[i]
+        moved[q] = False
         S[0, q], S[1, q], S[2, q] = S[0, q] + E[0, q], S[1, q] + E[1, q], S[2, q] + E[2, q]
     return n_touched
-
-
-@njit(cache=True)
-def _listed(items, n, x) -> bool:
-    for i in range(n - 1, -1, -1):
-        if items[i] == x:
-            return True
-    return False
 
 
 @njit(cache=True)
@@ -214,12 +209,13 @@ def run_linear_lanes(t, A, B, R, guard, V, Td, x0, log, closed_loop, start, firs
     d_old, d_new = np.zeros(m), np.empty(m)
     U = np.zeros(m)                                   # motor voltage of delayed sets: off until a command arrives
     # commands on their way (set, arrival, volts), listed per step of arrival
-    events = np.empty((4 * m if delayed else 0, 3))
+    events = np.empty((4 * m if delayed else 0, 3))          # grown as needed
     head, tail = np.full(n, -1), np.full(n, -1)
     nxt = np.empty(len(events), dtype=np.int64)
     n_events = 0
     keys, gammas, n_split = np.empty((m, MAX_SPLITS)), np.empty((m, MAX_SPLITS, 3)), np.zeros(m, dtype=np.int64)
-    touched, E, G = np.empty(m, dtype=np.int64), np.empty((3, m)), np.empty(12)
+    touched, moved = np.empty(m, dtype=np.int64), np.zeros(m, dtype=np.bool_)
+    E, G = np.empty((3, m)), np.empty(12)
     Yf = Y.reshape(Y.size)
     Sf = S.reshape(3 * m)
     for q in range(m):
@@ -230,8 +226,9 @@ def run_linear_lanes(t, A, B, R, guard, V, Td, x0, log, closed_loop, start, firs
             j = idx[k - 1]
             _common_step(P[j], S, d_old, d_new, U, undelayed, V, thr, m)
             if delayed:
-                moved = _arrivals(k - 1, t, P[j], A, B, S, U, events, head, nxt, keys, gammas, n_split, touched, E, G)
-                for i in range(moved):                  # re-decide where a correction moved the state
+                n_moved = _arrivals(k - 1, t, P[j], A, B, S, U, events, head, nxt, keys, gammas, n_split, touched, moved,
+                                    E, G)
+                for i in range(n_moved):                  # re-decide where a correction moved the state
                     q = touched[i]
                     d_new[q] = decide(k, int(d_old[q]), S[2, q] / R[q], guard[q], log, closed_loop, start,
                                       first, dir0)
@@ -242,24 +239,9 @@ def run_linear_lanes(t, A, B, R, guard, V, Td, x0, log, closed_loop, start, firs
                     d_new[q] = decide(k, int(d_old[q]), S[2, q] / R[q], guard[q], log, closed_loop, start,
                                       first, dir0)
         if delayed:
-            for q in range(m):
-                if d_new[q] != d_old[q] and not undelayed[q]:
-                    arrive = t[k] + Td[q]
-                    s = k                               # the step the command lands in (none: past the end)
-                    while s < n - 1 and not arrive < t[s + 1] - TIME_EPS:
-                        s += 1
-                    if s == n - 1:
-                        continue
-                    if n_events == len(events):
-                        events, nxt = _grown(events, nxt)
-                    events[n_events, 0], events[n_events, 1], events[n_events, 2] = q, arrive, d_new[q] * V[q]
-                    nxt[n_events] = -1
-                    if head[s] < 0:
-                        head[s] = n_events
-                    else:
-                        nxt[tail[s]] = n_events
-                    tail[s] = n_events
-                    n_events += 1
+            if len(events) - n_events < m:             # room for every set changing at once
+                events, nxt = _grown(events, nxt, n_events + m)
+            n_events = _schedule(k, t, Td, V, d_old, d_new, undelayed, events, nxt, head, tail, n_events)
         stream_copy(Yf, k * 3 * m, Sf)
         for q in range(m):
             dirs[k, q] = np.int8(d_new[q])
@@ -268,8 +250,33 @@ def run_linear_lanes(t, A, B, R, guard, V, Td, x0, log, closed_loop, start, firs
 
 
 @njit(cache=True)
-def _grown(events, nxt):
-    more = np.empty((2 * len(events) + 16, 3))
+def _schedule(k, t, Td, V, d_old, d_new, undelayed, events, nxt, head, tail, n_events) -> int:
+    """File the commands of delayed sets that changed at sample k under the step they reach the motor in
+    (``arrive < t_s+1 - TIME_EPS``, as ``kernels._delayed`` applies its queue); returns the new event count."""
+    n = len(t)
+    for q in range(len(d_new)):
+        if d_new[q] == d_old[q] or undelayed[q]:
+            continue
+        arrive = t[k] + Td[q]
+        s = k
+        while s < n - 1 and not arrive < t[s + 1] - TIME_EPS:
+            s += 1
+        if s == n - 1:                                  # arrives after the last sample
+            continue
+        events[n_events, 0], events[n_events, 1], events[n_events, 2] = q, arrive, d_new[q] * V[q]
+        nxt[n_events] = -1
+        if head[s] < 0:
+            head[s] = n_events
+        else:
+            nxt[tail[s]] = n_events
+        tail[s] = n_events
+        n_events += 1
+    return n_events
+
+
+@njit(cache=True)
+def _grown(events, nxt, need):
+    more = np.empty((max(2 * len(events), need), 3))
     more[:len(events)] = events
     more_nxt = np.empty(len(more), dtype=np.int64)
     more_nxt[:len(nxt)] = nxt
