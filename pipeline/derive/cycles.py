@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from pipeline.columns import column
 from pipeline.derive.stats import describe
 
 CYCLE_COLUMNS = ["cycle", "start_s", "end_s", "period_s", "theta_max_rad", "theta_min_rad",
@@ -21,10 +22,10 @@ CYCLE_COLUMNS = ["cycle", "start_s", "end_s", "period_s", "theta_max_rad", "thet
 
 def cycle_table(overshoot: pd.DataFrame) -> pd.DataFrame:
     """One row per complete cycle (schemas/cycles.json): upper turn -> lower turn -> upper turn."""
-    turned = overshoot["turned"].to_numpy(bool)
-    tt = overshoot["turn_t_s"].to_numpy(float)[turned]
-    th = overshoot["turn_theta_rad"].to_numpy(float)[turned]
-    up = overshoot["direction"].to_numpy()[turned] == 1
+    turned = column(overshoot, "turned", bool)
+    tt = column(overshoot, "turn_t_s", float)[turned]
+    th = column(overshoot, "turn_theta_rad", float)[turned]
+    up = column(overshoot, "direction")[turned] == 1
     up_t, up_th, down_t, down_th = tt[up], th[up], tt[~up], th[~up]
     keep, lows = [], []
     for a in range(len(up_t) - 1):
@@ -46,9 +47,9 @@ def cycle_summary(cycles: pd.DataFrame) -> dict:
     steady = cycles.iloc[1:] if len(cycles) > 1 else cycles
     return {
         "n_cycles": int(len(cycles)),
-        "period_s": describe(cycles["period_s"].to_numpy(float)),
-        "amplitude_rad": describe(cycles["amplitude_rad"].to_numpy(float)),
-        "center_rad": describe(cycles["center_rad"].to_numpy(float)),
-        "steady_period_s": describe(steady["period_s"].to_numpy(float)),
-        "steady_amplitude_rad": describe(steady["amplitude_rad"].to_numpy(float)),
+        "period_s": describe(column(cycles, "period_s", float)),
+        "amplitude_rad": describe(column(cycles, "amplitude_rad", float)),
+        "center_rad": describe(column(cycles, "center_rad", float)),
+        "steady_period_s": describe(column(steady, "period_s", float)),
+        "steady_amplitude_rad": describe(column(steady, "amplitude_rad", float)),
     }

@@ -19,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from pipeline.columns import column
 from pipeline.derive.phases import reversal_indices
 from pipeline.derive.stats import describe
 from pipeline.derive.tables import frame
@@ -137,8 +138,8 @@ def centre_drift(table: pd.DataFrame) -> tuple[float, bool, int]:
     friction -- which moves the overshoot at both guards the same way and
     would fool a trend on the overshoot itself.
     """
-    turned = np.flatnonzero(table["turned"].to_numpy(bool))
-    th, tt = table["turn_theta_rad"].to_numpy(float)[turned], table["turn_t_s"].to_numpy(float)[turned]
+    turned = np.flatnonzero(column(table, "turned", bool))
+    th, tt = column(table, "turn_theta_rad", float)[turned], column(table, "turn_t_s", float)[turned]
     order = np.argsort(tt, kind="quicksort")          # what sort_values("turn_t_s") does
     th, tt = th[order], tt[order]
     centre, when = (th[:-1] + th[1:]) / 2.0, (tt[:-1] + tt[1:]) / 2.0
@@ -157,8 +158,8 @@ def overshoot_summary(table: pd.DataFrame, guard_rad: float, period_s: float, di
     """
     out: dict = {"guard_rad": guard_rad, "crossings": int(len(table)), "directions": {}, "flags": []}
     # plain arrays and masks: pandas row selections cost more than the statistics here
-    direction, turned = table["direction"].to_numpy(), table["turned"].to_numpy(bool)
-    col = {c: table[c].to_numpy(float) for c in ("overshoot_rad", "trigger_excess_rad", "turn_delay_s",
+    direction, turned = column(table, "direction"), column(table, "turned", bool)
+    col = {c: column(table, c, float) for c in ("overshoot_rad", "trigger_excess_rad", "turn_delay_s",
                                                   "current_reversal_delay_s", "turn_t_s")}
     for d, name in ((1, "upper"), (-1, "lower")):
         sub = direction == d
@@ -180,8 +181,8 @@ def overshoot_summary(table: pd.DataFrame, guard_rad: float, period_s: float, di
     out["guard_offset_flag"] = False
     if dir_logged and len(table):
         # the sketch reverses at the first sample past its guard: within one sample's travel beyond it
-        reach = np.abs(table["trigger_omega_rad_s"].to_numpy(float)) * period_s * 1.5 + 0.01
-        excess = table["trigger_excess_rad"].to_numpy(float)
+        reach = np.abs(column(table, "trigger_omega_rad_s", float)) * period_s * 1.5 + 0.01
+        excess = column(table, "trigger_excess_rad", float)
         off = (excess < -0.01) | (excess > reach)
         out["guard_offset_flag"] = bool(off.mean() > 0.5)
         if out["guard_offset_flag"]:

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from pipeline.columns import column
 from pipeline.config import RigConfig
 from pipeline.derive.cycles import cycle_summary, cycle_table
 from pipeline.derive.energy import paper_energy_j, run_energy
@@ -60,7 +61,7 @@ def time_axis(signals: pd.DataFrame, period_s: float, notes: list[str]) -> np.nd
     """
     if len(signals) == 0:
         raise PdrError("signals table has no samples: nothing to derive", key="t_s")
-    t = signals["t_s"].to_numpy(dtype=float)
+    t = column(signals, "t_s", dtype=float)
     steps = np.diff(t)
     if len(steps) and np.all(steps == 0):
         notes.append(f"timer stuck (t_s never advances): the nominal period {period_s:g} s is used as the time axis")
@@ -81,14 +82,14 @@ def derive_tables(signals: pd.DataFrame, cfg: RigConfig) -> DerivedTables:
     not_computed: dict[str, str] = {}
     notes: list[str] = []
     t = time_axis(signals, spec.period_s, notes)
-    theta = signals["theta_rad"].to_numpy(dtype=float)
-    current = signals["current_a"].to_numpy(dtype=float) if "current_a" in signals else None
+    theta = column(signals, "theta_rad", dtype=float)
+    current = column(signals, "current_a", dtype=float) if "current_a" in signals else None
 
     omega_b = backward_difference(t, theta)
     omega_sg = savgol_velocity(t, theta)
     omega = omega_sg
     dir_logged = "dir" in signals
-    dirs = signals["dir"].to_numpy().astype(np.int8) if dir_logged else infer_dir(t, theta, guard)
+    dirs = column(signals, "dir").astype(np.int8) if dir_logged else infer_dir(t, theta, guard)
     kin = {"t_s": t, "theta_rad": theta, "omega_rad_s": omega, "omega_backward_rad_s": omega_b,
            "omega_savgol_rad_s": omega_sg}
     smooth = None

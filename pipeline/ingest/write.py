@@ -12,6 +12,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from pipeline.columns import column
 from pipeline.config import RigConfig
 from pipeline.io.atomic import atomic_path, write_json
 from pipeline.runs import RunPaths
@@ -58,7 +59,7 @@ def signals_table(df: pd.DataFrame, where: str) -> pa.Table:
     if not set(df.columns) <= {c.name for c in schema.columns}:
         schema.check(df, where)                 # names the column the schema does not define
     arrow = schema.arrow_schema(df.columns)
-    table = pa.Table.from_arrays([pa.array(df[f.name].to_numpy(), f.type) for f in arrow], schema=arrow)
+    table = pa.Table.from_arrays([pa.array(column(df, f.name), f.type) for f in arrow], schema=arrow)
     schema.check_arrow(table, where)
     return table
 
@@ -73,7 +74,7 @@ def mcap_channels(df: pd.DataFrame):
             continue
         title = "pdr." + topic.strip("/")
         out.append(ChannelBatch(topic=topic, schema_name=title, json_schema=schema.json_schema(present, title=title),
-                                fields={c: df[c].to_numpy() for c in present}))
+                                fields={c: column(df, c) for c in present}))
     return out
 
 
@@ -119,6 +120,6 @@ def write_run(paths: RunPaths, df: pd.DataFrame, report: dict, cfg: RigConfig) -
     """The ingest outputs of one run after its ``write_signals``; each file replaced in one rename, the report last."""
     from pipeline.ingest.mcap_bulk import write_mcap
     with atomic_path(paths.mcap) as tmp, open(tmp, "wb") as fh:
-        write_mcap(fh, mcap_channels(df), log_time_ns(df["t_s"].to_numpy()), mcap_metadata(cfg, report))
+        write_mcap(fh, mcap_channels(df), log_time_ns(column(df, "t_s")), mcap_metadata(cfg, report))
     write_json(paths.rig_config, {"config": cfg.to_dict(), "sources": cfg.sources})
     write_json(paths.ingest_report, report)

@@ -20,6 +20,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from pipeline.columns import column
 from pipeline.derive.energy import run_energy
 from pipeline.model.effects import PlantSpec
 from pipeline.model.simulate import SimResult, simulate
@@ -46,7 +47,7 @@ def initial_state(kin: pd.DataFrame, spec: PlantSpec) -> tuple[float, float, flo
     theta0 = float(kin["theta_rad"].iloc[0])
     if "dir" in kin.columns and int(kin["dir"].iloc[0]) == 0:
         return (0.0, 0.0, theta0 * spec.params.R)
-    omega = kin["omega_rad_s"].to_numpy(dtype=float, na_value=np.nan)
+    omega = column(kin, "omega_rad_s", dtype=float, na_value=np.nan)
     finite = omega[np.isfinite(omega)]
     omega0 = float(finite[0]) if len(finite) else 0.0
     current0 = 0.0
@@ -59,12 +60,12 @@ def initial_state(kin: pd.DataFrame, spec: PlantSpec) -> tuple[float, float, flo
 
 def logged_dir(kin: pd.DataFrame) -> np.ndarray:
     """The command sequence that drives replay: logged ``dir``, or the derive stage's inferred one."""
-    return kin["dir"].to_numpy(dtype=np.int8)
+    return column(kin, "dir", dtype=np.int8)
 
 
 def simulate_both(spec: PlantSpec, kin: pd.DataFrame) -> dict[str, SimResult]:
     """Closed loop and replay at the recording's own sample instants, from its initial state."""
-    t = kin["t_s"].to_numpy(dtype=float)
+    t = column(kin, "t_s", dtype=float)
     d = logged_dir(kin)
     x0 = initial_state(kin, spec)
     nz = d[d != 0]
@@ -132,19 +133,19 @@ def _difference(sim: dict[str, float], meas: dict[str, float], keys: tuple[str, 
 def compare(kin: pd.DataFrame, spec: PlantSpec, sims: dict[str, SimResult] | None = None) -> dict:
     """Everything ``validation.json`` holds about one run, for both ways."""
     sims = simulate_both(spec, kin) if sims is None else sims
-    t = kin["t_s"].to_numpy(dtype=float)
-    theta = kin["theta_rad"].to_numpy(dtype=float)
+    t = column(kin, "t_s", dtype=float)
+    theta = column(kin, "theta_rad", dtype=float)
     d = logged_dir(kin)
     guard = spec.guard_rad
     meas_osc = oscillation_stats(t, theta, d, guard)
     has_current = "current_a" in kin.columns
     meas_energy = None
     if has_current:
-        omega = np.nan_to_num(kin["omega_rad_s"].to_numpy(dtype=float, na_value=np.nan))
+        omega = np.nan_to_num(column(kin, "omega_rad_s", dtype=float, na_value=np.nan))
         # the derive stage's current (smoothed within phases when it made one): the same
         # inputs and code as summary.json's energy, so validation's "measured" is derive's figure
         col = "current_smooth_a" if "current_smooth_a" in kin.columns else "current_a"
-        meas_energy = run_energy(t, kin[col].to_numpy(dtype=float), omega, theta, d, spec)
+        meas_energy = run_energy(t, column(kin, col, dtype=float), omega, theta, d, spec)
     out: dict = {"measured": {"oscillation": meas_osc, "energy": meas_energy}}
     osc_keys = ("period_s", "amplitude_rad", "overshoot_rad")
     for way, sim in sims.items():
@@ -176,14 +177,14 @@ def comparison_table(kin: pd.DataFrame, sims: dict[str, SimResult]) -> pd.DataFr
     """Measured beside both simulations, one row per sample (``schemas/comparison.json``)."""
     cl, rp = sims["closed_loop"], sims["replay"]
     cols = {
-        "t_s": kin["t_s"].to_numpy(dtype=float),
-        "theta_rad": kin["theta_rad"].to_numpy(dtype=float),
+        "t_s": column(kin, "t_s", dtype=float),
+        "theta_rad": column(kin, "theta_rad", dtype=float),
         "theta_closed_loop_rad": cl.theta, "theta_replay_rad": rp.theta,
-        "omega_rad_s": kin["omega_rad_s"].to_numpy(dtype=float, na_value=np.nan),
+        "omega_rad_s": column(kin, "omega_rad_s", dtype=float, na_value=np.nan),
         "omega_closed_loop_rad_s": cl.omega, "omega_replay_rad_s": rp.omega,
     }
     if "current_a" in kin.columns:
-        cols["current_a"] = kin["current_a"].to_numpy(dtype=float)
+        cols["current_a"] = column(kin, "current_a", dtype=float)
     cols.update({"current_closed_loop_a": cl.current_measured, "current_replay_a": rp.current_measured,
                  "dir": logged_dir(kin), "dir_closed_loop": cl.dir.astype(np.int8),
                  "dir_replay": rp.dir.astype(np.int8)})

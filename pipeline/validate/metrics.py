@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from pipeline.columns import column
 from pipeline.model.simulate import SimResult
 
 # signal -> (measured kinematics column, SimResult field, unit)
@@ -51,10 +52,10 @@ def signal_errors(measured: pd.DataFrame, sim: SimResult) -> dict[str, dict[str,
     if len(measured) != len(sim.t):
         raise ValueError(f"measured table has {len(measured)} rows, simulation {len(sim.t)} samples")
     out: dict[str, dict[str, float]] = {}
-    for name, (column, field, _unit) in SIGNALS.items():
-        if column not in measured.columns:
+    for name, (col, field, _unit) in SIGNALS.items():
+        if col not in measured.columns:
             continue
-        out[name] = error_measures(measured[column].to_numpy(dtype=float, na_value=np.nan),
+        out[name] = error_measures(column(measured, col, dtype=float, na_value=np.nan),
                                    getattr(sim, field))
     return out
 

@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from pipeline.columns import column
 from pipeline.io.atomic import write_bytes
 from pipeline.model.simulate import SimResult
 
@@ -108,8 +109,8 @@ class _Overview:
         return self.backgrounds[key]
 
     def render(self, title: str, kin: pd.DataFrame, sims: dict[str, SimResult], guard: float) -> bytes:
-        t = kin["t_s"].to_numpy(dtype=float)
-        measured = [kin[col].to_numpy(dtype=float, na_value=np.nan) if col in kin.columns
+        t = column(kin, "t_s", dtype=float)
+        measured = [column(kin, col, dtype=float, na_value=np.nan) if col in kin.columns
                     else np.full(len(t), np.nan) for col, _f, _l in _PANELS]
         simulated = {way: [getattr(sims[way], f) for _c, f, _l in _PANELS] for way in ("closed_loop", "replay")}
         limits = (nice_limit(float(t[-1]) if len(t) else 1.0),

@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from pipeline.columns import column
 from pipeline.errors import PdrError
 from pipeline.model.simulate import SimResult
 from pipeline.validate.compare import logged_dir, switch_indices
@@ -86,10 +87,10 @@ def blueprint():
                          rrb.BlueprintPanel(state="collapsed"), auto_views=False)
 
 
-def _measured(kin: pd.DataFrame, column: str) -> np.ndarray | None:
-    if column not in kin.columns:
+def _measured(kin: pd.DataFrame, name: str) -> np.ndarray | None:
+    if name not in kin.columns:
         return None
-    return kin[column].to_numpy(dtype=float, na_value=np.nan)
+    return column(kin, name, dtype=float, na_value=np.nan)
 
 
 @functools.lru_cache(maxsize=None)
@@ -254,11 +255,11 @@ def log_run(rec, name: str, kin: pd.DataFrame, sims: dict[str, SimResult], valid
     """Log one run into an open recording stream (no file handling here)."""
     import rerun as rr
 
-    t = kin["t_s"].to_numpy(dtype=float)
+    t = column(kin, "t_s", dtype=float)
     every = rr.TimeColumn(TIMELINE, duration=t)
     d = logged_dir(kin)
-    for sig, (column, field, _unit) in SIGNALS.items():
-        meas = _measured(kin, column)
+    for sig, (name_in_kin, field, _unit) in SIGNALS.items():
+        meas = _measured(kin, name_in_kin)
         if meas is not None:
             _scalars(rec, f"signals/{sig}/measured", t, meas, "measured", MEASURED, 2.0, every)
         for way in ("closed_loop", "replay"):

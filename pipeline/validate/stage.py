@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from pipeline.columns import column
 from pipeline.config import RigConfig, resolve_config
 from pipeline.errors import PdrError
 from pipeline.io.atomic import write_json, write_parquet
@@ -101,7 +102,7 @@ def panel_tables(tables: dict[str, pd.DataFrame]) -> dict[str, dict[str, np.ndar
     Plain arrays, not DataFrames: a column selection plus ``head`` costs pandas
     3 about 2 ms per table, more than writing the panel.
     """
-    return {key: {c: tables[key][c].to_numpy()[:40] for c in columns if c in tables[key].columns}
+    return {key: {c: column(tables[key], c)[:40] for c in columns if c in tables[key].columns}
             for key, columns in DERIVED_COLUMNS.items() if key in tables}
 
 
