@@ -5,36 +5,56 @@ A killed run leaves either the previous file or the new one, never a torn one.
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
-import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Iterator
 
 
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
+_TEMP_FLAGS = os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC | getattr(os, "O_NOFOLLOW", 0)
+_serial = itertools.count()
 
 
-_FILE_MODE = 0o666 & ~_umask()   # what open() would give: mkstemp's 0600 would hide outputs from other users
+def _create_temp(target: Path) -> tuple[int, Path]:
+    """A new, empty temporary file beside ``target`` (same filesystem, so the rename is atomic).
+
+    Named by process and a counter (``.<name>.<pid>.<n>.tmp``, the pattern
+    ``remove_stale_temporaries`` clears), created exclusively with open()'s
+    usual permissions.  Cheaper than ``tempfile.mkstemp``, whose random names
+    and 0600 mode (then a chmod) cost a few syscalls per file, and a
+    recording writes a dozen files.  A name left by a killed process with the
+    same pid is simply skipped.
+    """
+    for _ in range(100):
+        tmp = target.with_name(f".{target.name}.{os.getpid()}.{next(_serial)}.tmp")
+        try:
+            return os.open(tmp, _TEMP_FLAGS, 0o666), tmp
+        except FileExistsError:
+            continue
+        except FileNotFoundError:
+            target.parent.mkdir(parents=True, exist_ok=True)
+    raise FileExistsError(f"no free temporary name beside {target}")
+
+
+def _fsync_path(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
 
 
 @contextmanager
 def atomic_path(target: Path) -> Iterator[Path]:
-    """Yield a temporary path beside ``target``; on success it replaces ``target`` in one rename."""
+    """Yield a temporary path beside ``target``; on success it is synced and replaces ``target`` in one rename."""
     target = Path(target)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+    fd, tmp_path = _create_temp(target)
     os.close(fd)
-    tmp_path = Path(tmp)
     try:
         yield tmp_path
-        with open(tmp_path, "rb") as fh:
-            os.fsync(fh.fileno())
-        os.chmod(tmp_path, _FILE_MODE)
+        _fsync_path(tmp_path)
         os.replace(tmp_path, target)
     finally:
         if tmp_path.exists():
@@ -42,8 +62,21 @@ def atomic_path(target: Path) -> Iterator[Path]:
 
 
 def write_bytes(target: Path, data: bytes) -> None:
-    with atomic_path(target) as tmp:
-        tmp.write_bytes(data)
+    """``data`` as ``target``, atomically: written, synced and renamed through one file descriptor."""
+    target = Path(target)
+    fd, tmp_path = _create_temp(target)
+    try:
+        try:
+            view = memoryview(data)
+            while view:
+                view = view[os.write(fd, view):]
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+        os.replace(tmp_path, target)
+    except BaseException:
+        tmp_path.unlink(missing_ok=True)
+        raise
 
 
 def write_text(target: Path, text: str) -> None:
