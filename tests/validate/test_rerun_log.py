@@ -26,12 +26,21 @@ def rrd(tmp_path_factory):
 
 
 def _scalars(chunks, entity):
+    """The entity's scalars, one row per sample, one column per instance (series)."""
     values = []
     for ch in chunks:
         if ch.entity_path == entity and not ch.is_static:
-            col = ch.to_record_batch().column("Scalars:scalars").to_pylist()
-            values += [v[0] for v in col]
+            values += ch.to_record_batch().column("Scalars:scalars").to_pylist()
     return np.array(values)
+
+
+def _series_names(chunks, entity):
+    for ch in chunks:
+        if ch.entity_path == entity and ch.is_static:
+            batch = ch.to_record_batch()
+            if "SeriesLines:names" in batch.schema.names:
+                return batch.column("SeriesLines:names").to_pylist()[0]
+    return None
 
 
 def test_expected_entities_and_row_counts(rrd):
@@ -45,10 +54,11 @@ def test_expected_entities_and_row_counts(rrd):
             rows[ch.entity_path] += ch.num_rows
     n = len(kin)
     for sig in ("theta", "omega", "current"):
-        for way in ("measured", "closed_loop", "replay"):
-            assert rows[f"/signals/{sig}/{way}"] == n
-        for way in ("closed_loop", "replay"):
-            assert rows[f"/residuals/{sig}/{way}"] == n
+        assert rows[f"/signals/{sig}"] == n
+        assert rows[f"/residuals/{sig}"] == n
+        assert _scalars(chunks, f"/signals/{sig}").shape == (n, 3)          # one instance per series
+        assert _series_names(chunks, f"/signals/{sig}") == ["measured", "closed loop", "replay"]
+        assert _series_names(chunks, f"/residuals/{sig}") == ["measured - closed loop", "measured - replay"]
     assert rows["/signals/theta/guard_upper"] == 2           # a straight line: its two ends
     d = kin["dir"].to_numpy()
     n_switch = len(switch_indices(d))
@@ -64,12 +74,13 @@ def test_expected_entities_and_row_counts(rrd):
 def test_values_round_trip(rrd):
     path, kin, sims = rrd
     chunks = RrdReader(path).stream().to_chunks()
-    np.testing.assert_allclose(_scalars(chunks, "/signals/theta/measured"), kin["theta_rad"].to_numpy())
-    np.testing.assert_allclose(_scalars(chunks, "/signals/current/replay"), sims["replay"].current_measured)
-    np.testing.assert_allclose(_scalars(chunks, "/residuals/omega/closed_loop"),
+    np.testing.assert_allclose(_scalars(chunks, "/signals/theta")[:, 0], kin["theta_rad"].to_numpy())
+    np.testing.assert_allclose(_scalars(chunks, "/signals/theta")[:, 1], sims["closed_loop"].theta)
+    np.testing.assert_allclose(_scalars(chunks, "/signals/current")[:, 2], sims["replay"].current_measured)
+    np.testing.assert_allclose(_scalars(chunks, "/residuals/omega")[:, 0],
                                kin["omega_rad_s"].to_numpy() - sims["closed_loop"].omega)
     guard = _scalars(chunks, "/signals/theta/guard_lower")
-    assert list(guard) == [-SPEC.guard_rad] * 2
+    assert list(guard[:, 0]) == [-SPEC.guard_rad] * 2
 
 
 def test_trajectory_is_scaled_to_fill_the_view_and_stats_are_text(rrd):
