@@ -173,7 +173,9 @@ def png_rgb(rgb: np.ndarray) -> bytes:
     """
     h, w, _ = rgb.shape
     rows = np.zeros((h, 1 + 3 * w), np.uint8)                        # filter type 0 before each row
-    rows[:, 1:].reshape(h, w, 3)[...] = rgb                          # one copy, straight from the RGBA canvas
+    pixels = rows[:, 1:].reshape(h, w, 3)
+    for channel in range(3):            # channel by channel: numpy copies a 3-byte pixel at a time otherwise,
+        pixels[..., channel] = rgb[..., channel]                     # 3 ms instead of 0.5 for the overview
 
     def chunk(tag: bytes, data: bytes) -> bytes:
         return struct.pack(">I", len(data)) + tag + data + struct.pack(">I", zlib.crc32(tag + data))
