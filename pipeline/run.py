@@ -44,7 +44,7 @@ import typer
 
 from pipeline.config import config_layers_for
 from pipeline.errors import PdrError
-from pipeline.io.atomic import write_json
+from pipeline.io.atomic import deferred_sync, write_json
 from pipeline.runs import RunPaths
 
 LOCK_NAME = ".pdr.lock"
@@ -187,7 +187,8 @@ def process_chunk(items: list[tuple[Path, Stamp]], processed: Path, ingested: di
         usage = resource.getrusage(resource.RUSAGE_CHILDREN)
         return usage.ru_utime + usage.ru_stime
 
-    done = [_all_stages(csv, processed, (ingested or {}).get(csv.name)) for csv, _stamp in items]
+    with deferred_sync():       # one sync for the chunk's files, before any of their stamps
+        done = [_all_stages(csv, processed, (ingested or {}).get(csv.name)) for csv, _stamp in items]
     rrds = [RunPaths(processed / name).rrd for out, _old in done if out["status"] == "ok" for name in out["runs"]]
     t0, c0 = time.perf_counter(), child_cpu()
     bad = verify_rrds(rrds)
@@ -385,10 +386,11 @@ def _ingest_ahead(todo: list[tuple[Path, Stamp]], processed: Path, starting: thr
     """
     importlib.import_module("pipeline.validate.summary")
     ahead: dict[str, dict] = {}
-    for csv, _stamp in reversed(todo):
-        if not starting.is_alive():
-            break
-        ahead[csv.name] = ingest_ahead(csv, processed)
+    with deferred_sync():
+        for csv, _stamp in reversed(todo):
+            if not starting.is_alive():
+                break
+            ahead[csv.name] = ingest_ahead(csv, processed)
     return ahead
 
 

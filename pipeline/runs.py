@@ -66,9 +66,9 @@ if TYPE_CHECKING:  # pandas is imported lazily: `pdr run` with nothing to do mus
 
 
 def load_signals(paths: RunPaths) -> pd.DataFrame:
-    import pandas as pd
+    from pipeline.io.atomic import read_parquet
 
-    return pd.read_parquet(paths.signals)
+    return read_parquet(paths.signals)
 
 
 def load_config(paths: RunPaths) -> RigConfig:

@@ -66,3 +66,58 @@ def test_a_stale_temporary_of_the_same_name_is_skipped_not_overwritten(tmp_path,
     write_bytes(target, b"new")
     assert target.read_bytes() == b"new"
     assert stale.read_bytes() == b"left by a killed run"
+
+
+def _table():
+    import numpy as np
+    import pyarrow as pa
+    schema = pa.schema([pa.field("t_s", pa.float64(), metadata={"unit": "s"}), pa.field("dir", pa.int8()),
+                        pa.field("current_a", pa.float64(), nullable=True), pa.field("mode", pa.string())])
+    return pa.Table.from_arrays([pa.array(np.linspace(0, 1, 50)), pa.array(np.ones(50, np.int8)),
+                                 pa.array([None if i % 7 == 0 else i * 0.1 for i in range(50)], pa.float64()),
+                                 pa.array(["q1", "q2"] * 25)], schema=schema)
+
+
+def test_parquet_in_memory_and_streamed_give_the_same_bytes(tmp_path, monkeypatch):
+    import pyarrow.parquet as pq
+    table = _table()
+    atomic.write_parquet(tmp_path / "memory.parquet", table)
+    monkeypatch.setattr(atomic, "IN_MEMORY_PARQUET_BYTES", 0)         # force the streamed path
+    atomic.write_parquet(tmp_path / "streamed.parquet", table)
+    assert (tmp_path / "memory.parquet").read_bytes() == (tmp_path / "streamed.parquet").read_bytes()
+    assert pq.read_table(tmp_path / "memory.parquet").equals(table)
+    assert _temps(tmp_path) == []
+
+
+def test_read_parquet_gives_what_pandas_gives(tmp_path):
+    import pandas as pd
+    atomic.write_parquet(tmp_path / "t.parquet", _table())
+    ours, theirs = atomic.read_parquet(tmp_path / "t.parquet"), pd.read_parquet(tmp_path / "t.parquet")
+    pd.testing.assert_frame_equal(ours, theirs)
+
+
+def test_deferred_sync_skips_per_file_fsyncs_and_syncs_once_on_leaving(tmp_path, monkeypatch):
+    calls = {"fsync": 0, "sync": 0}
+    real_fsync, real_sync = os.fsync, os.sync
+
+    def counting_fsync(fd):
+        calls["fsync"] += 1
+        real_fsync(fd)
+
+    def counting_sync():
+        calls["sync"] += 1
+        real_sync()
+
+    monkeypatch.setattr(os, "fsync", counting_fsync)
+    monkeypatch.setattr(os, "sync", counting_sync)
+    with atomic.deferred_sync():
+        with atomic.deferred_sync():                        # nested: still one sync, at the outermost exit
+            write_bytes(tmp_path / "a", b"a")
+            with atomic_path(tmp_path / "b") as tmp:
+                tmp.write_bytes(b"b")
+        assert calls == {"fsync": 0, "sync": 0}
+        assert (tmp_path / "a").read_bytes() == b"a" and (tmp_path / "b").read_bytes() == b"b"
+    assert calls == {"fsync": 0, "sync": 1}
+    write_bytes(tmp_path / "c", b"c")                       # outside: durable file by file again
+    assert calls == {"fsync": 1, "sync": 1}
+    assert _temps(tmp_path) == []

@@ -1,6 +1,11 @@
 """Atomic output: write to a temporary file in the same folder, fsync, rename.
 
-A killed run leaves either the previous file or the new one, never a torn one.
+A killed run leaves either the previous file or the new one, never a torn one
+(that needs only the rename).  The fsync makes the new file durable before it
+replaces the old one, so a power cut cannot leave an empty file under the
+output's name either; ``deferred_sync`` trades a dozen fsyncs per recording
+for one ``os.sync()`` where a caller writes a marker (``pdr run``'s stamps)
+only after it.
 """
 
 from __future__ import annotations
@@ -11,6 +16,36 @@ import os
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Iterator
+
+
+_deferred_depth = 0     # > 0 inside deferred_sync(): per-file fsyncs are skipped
+
+
+@contextmanager
+def deferred_sync() -> Iterator[None]:
+    """Atomic writes inside skip their fsync; leaving it syncs everything once (``os.sync``).
+
+    For ``pdr run``: a worker writes ~13 files per recording, and their fsyncs
+    (~0.5 ms each on a quiet disk, several ms on a busy one) leave its core
+    idle.  Inside, each file is still renamed into place complete (a killed
+    process leaves old or new files); the one sync on exit makes them durable
+    before the run's stamp is written, so a power cut can at worst cost a
+    re-run, never a stamp over empty files.  Process-wide (helper threads
+    write too); nested uses sync once, at the outermost exit.
+    """
+    global _deferred_depth
+    _deferred_depth += 1
+    try:
+        yield
+    finally:
+        _deferred_depth -= 1
+        if _deferred_depth == 0:
+            os.sync()
+
+
+def _sync(fd: int) -> None:
+    if _deferred_depth == 0:
+        os.fsync(fd)
 
 
 _TEMP_FLAGS = os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC | getattr(os, "O_NOFOLLOW", 0)
@@ -39,6 +74,8 @@ def _create_temp(target: Path) -> tuple[int, Path]:
 
 
 def _fsync_path(path: Path) -> None:
+    if _deferred_depth:
+        return
     fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC)
     try:
         os.fsync(fd)
@@ -70,7 +107,7 @@ def write_bytes(target: Path, data: bytes) -> None:
             view = memoryview(data)
             while view:
                 view = view[os.write(fd, view):]
-            os.fsync(fd)
+            _sync(fd)
         finally:
             os.close(fd)
         os.replace(tmp_path, target)
@@ -88,11 +125,33 @@ def write_json(target: Path, obj: Any) -> None:
     write_text(target, json.dumps(obj, indent=2, sort_keys=True, allow_nan=False, default=_default) + "\n")
 
 
+IN_MEMORY_PARQUET_BYTES = 32 << 20   # tables up to this size are encoded in memory, then written in one go
+
+
 def write_parquet(target: Path, table: Any) -> None:
-    """A pyarrow Table as Parquet; same table and pyarrow version give identical bytes."""
+    """A pyarrow Table as Parquet; same table and pyarrow version give identical bytes.
+
+    A run's small tables (a few hundred rows) are encoded into a buffer and
+    written like any other bytes: ~1 ms, where handing pyarrow the path costs
+    ~4 ms (it resolves a filesystem and opens its own stream for each file).
+    Large tables stream to the file instead, so memory stays bounded.
+    """
+    import pyarrow as pa
     import pyarrow.parquet as pq
+    if table.nbytes <= IN_MEMORY_PARQUET_BYTES:
+        sink = pa.BufferOutputStream()
+        pq.write_table(table, sink)
+        write_bytes(target, sink.getvalue())
+        return
     with atomic_path(target) as tmp:
         pq.write_table(table, tmp)
+
+
+def read_parquet(path: Path):
+    """A Parquet file as a DataFrame, as ``pandas.read_parquet`` gives it for pdr's tables, at half the cost
+    (no dataset discovery for a single file)."""
+    import pyarrow.parquet as pq
+    return pq.ParquetFile(path).read().to_pandas()
 
 
 def _default(o: Any) -> Any:

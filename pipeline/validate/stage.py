@@ -19,7 +19,7 @@ import pandas as pd
 from pipeline.columns import column
 from pipeline.config import RigConfig, resolve_config
 from pipeline.errors import PdrError
-from pipeline.io.atomic import write_json, write_parquet
+from pipeline.io.atomic import read_parquet, write_json, write_parquet
 from pipeline.model.effects import PlantSpec
 from pipeline.runs import RunPaths, load_config
 from pipeline.derive.tables import schema_table
@@ -63,7 +63,7 @@ def load_kinematics(paths: RunPaths) -> pd.DataFrame:
     if not paths.kinematics.is_file():
         raise PdrError("no kinematics.parquet: run the derive stage first (pdr derive or pdr run)",
                        path=paths.root)
-    return checked_kinematics(pd.read_parquet(paths.kinematics), paths)
+    return checked_kinematics(read_parquet(paths.kinematics), paths)
 
 
 def checked_kinematics(kin: pd.DataFrame, paths: RunPaths) -> pd.DataFrame:
@@ -92,7 +92,7 @@ def derived_tables(paths: RunPaths) -> dict[str, dict[str, np.ndarray]]:
     for key in DERIVED_COLUMNS:
         path = getattr(paths, key)
         if path.is_file():
-            out[key] = pd.read_parquet(path)
+            out[key] = read_parquet(path)
     return panel_tables(out)
 
 
