@@ -14,6 +14,13 @@ import numpy as np
 import pandas as pd
 
 
+def stored(df: pd.DataFrame, name: str):
+    """The column as pandas stores it: a numpy array (read it, never write it) or an extension array
+    (nullable, Arrow-backed strings), which ``pyarrow.array`` takes without a detour through Python objects."""
+    where = df.columns.get_loc(name)
+    return df._get_column_array(where) if isinstance(where, int) else df[name].to_numpy()
+
+
 def column(df: pd.DataFrame, name: str, dtype: Any = None, na_value: Any = None) -> np.ndarray:
     """``df[name].to_numpy(dtype, na_value=...)``, read-only, as pandas 3 gives it.
 

@@ -58,3 +58,16 @@ def test_duplicate_names_fall_back_to_pandas():
 def test_missing_column_raises_key_error(df):
     with pytest.raises(KeyError):
         column(df, "nope")
+
+
+def test_stored_columns_convert_to_arrow_as_their_pandas_values_do(df):
+    import pyarrow as pa
+
+    from pipeline.columns import stored
+    for name, typ in (("f", pa.float64()), ("d", pa.int8()), ("nullable", pa.float64()), ("s", pa.string()),
+                      ("b", pa.bool_())):
+        ours = pa.array(stored(df, name), type=typ, from_pandas=True)
+        values = df[name].to_numpy(dtype=float, na_value=np.nan) if name == "nullable" else df[name].to_numpy()
+        theirs = pa.array(values, type=typ, from_pandas=True)
+        assert ours.equals(theirs), name
+    assert pa.array(stored(df, "nullable"), type=pa.float64()).null_count == 2

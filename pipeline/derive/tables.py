@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from pipeline.columns import column
+from pipeline.columns import stored
 
 
 def frame(rows: list[dict], columns: list[str], dtypes: dict[str, str]) -> pd.DataFrame:
@@ -37,7 +37,7 @@ def schema_table(name: str, df: pd.DataFrame, where: str = ""):
         return schema.to_arrow(df, where)
     arrow_schema = schema.arrow_schema(df.columns)
     try:
-        arrays = [pa.array(column(df, f.name), type=f.type, from_pandas=True) for f in arrow_schema]
+        arrays = [pa.array(stored(df, f.name), type=f.type, from_pandas=True) for f in arrow_schema]
         table = pa.Table.from_arrays(arrays, schema=arrow_schema)
     except (pa.ArrowInvalid, pa.ArrowTypeError, TypeError, ValueError, OverflowError):
         return schema.to_arrow(df, where)
