@@ -227,23 +227,23 @@ def write_rrd(target: Path, d: Discovery, report_md: str, way: str = "replay") -
     atomically and checked with ``rerun rrd verify``."""
     import rerun as rr
 
-    from pipeline.validate.rerun_log import _scalars, verify_rrd
+    from pipeline.validate.rerun_log import TIMELINE, log_signal, verify_rrd
 
     t = d.meas.t
     colors = {"measured": (200, 200, 200), "base": (255, 140, 0), "augmented": (0, 170, 255)}
     with atomic_path(Path(target)) as tmp:
         rec = rr.RecordingStream("pdr-discover", recording_id=f"discover-{d.meas.name}")
         rec.save(tmp, default_blueprint=_rrd_blueprint())
+        every = rr.TimeColumn(TIMELINE, duration=t)
         for sig, column, field, _unit in _SIGNALS:
             y = _measured(d, column)
+            models = {"base": getattr(d.base[way], field), "augmented": getattr(d.final[way], field)}
+            lines = {} if y is None else {"measured": (y, colors["measured"], 2.0)}
+            lines.update({f"{label} model": (v, colors[label], 1.5) for label, v in models.items()})
+            log_signal(rec, f"signals/{sig}", every, lines)
             if y is not None:
-                _scalars(rec, f"signals/{sig}/measured", t, y, "measured", colors["measured"], 2.0)
-            models = {"base": d.base[way], "augmented": d.final[way]}
-            for label, sim in models.items():
-                _scalars(rec, f"signals/{sig}/{label}", t, getattr(sim, field), f"{label} model", colors[label])
-                if y is not None:
-                    _scalars(rec, f"residuals/{sig}/{'before' if label == 'base' else 'after'}", t,
-                             y - getattr(sim, field), f"{'before' if label == 'base' else 'after'}", colors[label])
+                log_signal(rec, f"residuals/{sig}", every, {"before": (y - models["base"], colors["base"], 1.5),
+                                                         "after": (y - models["augmented"], colors["augmented"], 1.5)})
         rec.log("report", rr.TextDocument(report_md, media_type=rr.MediaType.MARKDOWN), static=True)
         rec.flush()
         rec.disconnect()

@@ -117,7 +117,7 @@ def _scalars(rec, path: str, t: np.ndarray, values: np.ndarray, name: str, color
                      columns=rr.Scalars.columns(scalars=values[ok]))
 
 
-def _signal(rec, path: str, time_column, series: dict[str, tuple[np.ndarray, int, float]]) -> None:
+def log_signal(rec, path: str, time_column, series: dict[str, tuple[np.ndarray, int, float]]) -> None:
     """Several series of one signal (measured, closed loop, replay) as one entity, one scalar instance each.
 
     One row per sample instead of one per sample and series: a third of the
@@ -281,10 +281,10 @@ def log_run(rec, name: str, kin: pd.DataFrame, sims: dict[str, SimResult], valid
         sim = {way: getattr(sims[way], field) for way in ("closed_loop", "replay")}
         lines = {} if meas is None else {"measured": (meas, MEASURED, 2.0)}
         lines.update({way.replace("_", " "): (v, SERIES[way], 1.5) for way, v in sim.items()})
-        _signal(rec, f"signals/{sig}", every, lines)
+        log_signal(rec, f"signals/{sig}", every, lines)
         if meas is not None:
-            _signal(rec, f"residuals/{sig}", every, {f"measured - {way.replace('_', ' ')}": (meas - v, SERIES[way], 1.5)
-                                                     for way, v in sim.items()})
+            residuals = {f"measured - {way.replace('_', ' ')}": (meas - v, SERIES[way], 1.5) for way, v in sim.items()}
+            log_signal(rec, f"residuals/{sig}", every, residuals)
     ends = t[[0, -1]]          # a guard is a straight line: its two ends are enough
     _scalars(rec, "signals/theta/guard_upper", ends, np.full(2, guard), "+guard", GUARD, 1.0)
     _scalars(rec, "signals/theta/guard_lower", ends, np.full(2, -guard), "-guard", GUARD, 1.0)

@@ -85,12 +85,17 @@ def test_rrd_has_measurement_models_and_residuals(delay_run):
     for ch in reader.stream().to_chunks():
         if not ch.is_static:
             rows[ch.entity_path] += ch.num_rows
-    n = rows["/signals/theta/measured"]
+    n = rows["/signals/theta"]
     assert n > 400
+    chunks = reader.stream().to_chunks()
     for sig in ("theta", "omega", "current"):
-        for series in ("measured", "base", "augmented"):
-            assert rows[f"/signals/{sig}/{series}"] == n
-        assert rows[f"/residuals/{sig}/before"] == n and rows[f"/residuals/{sig}/after"] == n
+        assert rows[f"/signals/{sig}"] == n and rows[f"/residuals/{sig}"] == n
+        names = [ch.to_record_batch().column("SeriesLines:names").to_pylist()[0] for ch in chunks
+                 if ch.is_static and ch.entity_path in (f"/signals/{sig}", f"/residuals/{sig}")]
+        assert sorted(names) == [["before", "after"], ["measured", "base model", "augmented model"]]
+        width = {len(v) for ch in chunks if ch.entity_path == f"/signals/{sig}" and not ch.is_static
+                 for v in ch.to_record_batch().column("Scalars:scalars").to_pylist()}
+        assert width == {3}                                   # measured, base and augmented at every sample
     assert len(reader.blueprints()) == 1
 
 
