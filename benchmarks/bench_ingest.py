@@ -100,7 +100,7 @@ def interleaved_best(k: int, csv: Path, out: Path) -> tuple[float, float, float,
 def breakdown(k: int, csv: Path, out: Path) -> dict[str, float]:
     """Best of k of each step of the Parquet path on its own (s): where the time goes.
 
-    read_capture's steps run one after the other (parse_plain's byte checks beside Arrow's read);
+    read_capture's steps run one after the other (parse_plain reads this capture with plain_kernel);
     then the Parquet write (check, encode row groups, each one's disk write started while the next
     is encoded) runs in a worker thread beside the report, so the path costs about
     read_capture + write_signals when the second core is free.
@@ -118,7 +118,7 @@ def breakdown(k: int, csv: Path, out: Path) -> dict[str, float]:
     df = cap.runs[0].signals
     table = signals_table(df, "bench")
     steps = {
-        "parse_plain (typed read_csv, byte checks beside it)": lambda j: parse_plain(data, cfg.columns, str(csv)),
+        "parse_plain (plain_kernel: two halves, two threads)": lambda j: parse_plain(data, cfg.columns, str(csv)),
         "read_capture (parse, clean, derived columns)": lambda j: read_capture(data, cfg, str(csv), csv.stem),
         "  schema check (check_arrow)": lambda j: signals_table(df, "bench"),
         "  Parquet encode, in memory": lambda j: pq.write_table(table, pa.BufferOutputStream(), **PARQUET_OPTIONS),

@@ -1,0 +1,123 @@
+"""The compiled plain reader (``plain_kernel``) reads exactly what the general path reads, or declines.
+
+For any capture: either ``read_int_rows`` declines, or the general path (``parse_capture``)
+reads the same file as one clean segment with the same values and line numbers; and a capture
+of valid integer rows in time order is never declined.  Both ways of cutting the body (one
+piece, two halves on two threads) are held to this.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from benchmarks.bench_ingest import make_capture
+from pipeline.config import default_config
+from pipeline.ingest import plain
+from pipeline.ingest.parse import format_line, parse_capture
+from pipeline.ingest.plain_kernel import read_int_rows
+from pipeline.ingest.stage import read_capture
+
+CFG = default_config()
+NAMES = ["t_ms", "counts", "adc", "dir"]
+
+row = st.fixed_dictionaries({
+    "t_raw": st.integers(0, 2**32 - 1).map(float),
+    "counts": st.integers(-(2**40), 2**40),
+    "adc": st.integers(0, 1023),
+    "dir": st.sampled_from([-1, 0, 1]),
+})
+# near misses of a row: what Arrow or int() would take but the grammar may not, and plain garbage
+near_miss = st.one_of(
+    st.text(alphabet="0123456789,-+. \t\re", min_size=0, max_size=24),
+    st.sampled_from(["+5,1,2,3", " 5,1,2,3", "5,1,2,3 ", "1.5,1,2,3", "1e3,1,2,3", "nan,1,2,3", "-0,1,2,3",
+                     "5,,2,3", "5,1,2", "5,1,2,3,4", "5,1,2,3,", "1234567890123456,1,2,3",
+                     "5,1234567890123456789,2,3", "5,-123456789012345678,2,3", "5,1,2,3\r\r", "5,1\r2,3"]),
+)
+
+
+def _general(data: bytes):
+    """The general path's single clean segment, or None when it reads the file any other way."""
+    try:
+        parsed = parse_capture(data, CFG.columns, "k.csv")
+    except Exception:           # noqa: BLE001  (a refusal: the kernel must have declined)
+        return None
+    if len(parsed.segments) != 1 or parsed.quarantined or parsed.segments[0].quarantined or parsed.blank_lines \
+            or parsed.comment_lines or parsed.notes:
+        return None
+    return parsed.segments[0]
+
+
+def _kernel(data: bytes, split_min_bytes: int):
+    lay = plain.plain_layout(data, CFG.columns, "k.csv")
+    if lay is None or lay.body_start == len(data):
+        return lay, None
+    return lay, read_int_rows(memoryview(data)[lay.body_start:], lay.width, lay.layout["t_raw"], split_min_bytes)
+
+
+@settings(max_examples=400, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.lists(st.one_of(row.map(lambda r: format_line(r, dict(zip(["t_raw", "counts", "adc", "dir"], range(4))), 4)),
+                          near_miss), min_size=1, max_size=30),
+       st.booleans(), st.sampled_from(["\n", "\r\n"]), st.sampled_from([0, 1 << 30]))
+def test_kernel_reads_what_the_general_path_reads_or_declines(lines, header, eol, split_min_bytes):
+    data = (((",".join(NAMES) + eol) if header else "") + eol.join(lines) + eol).encode()
+    lay, out = _kernel(data, split_min_bytes)
+    if out is None:
+        return
+    seg = _general(data)
+    assert seg is not None, data
+    assert seg.layout == lay.layout and seg.width == lay.width
+    assert seg.line.tolist() == list(range(lay.first_line, lay.first_line + out.shape[1]))
+    for logical, j in lay.layout.items():
+        expected = seg.values[logical]
+        got = out[j].astype(np.float64) if logical == "t_raw" else out[j]
+        assert np.array_equal(got, expected) and np.array_equal(np.signbit(got), np.signbit(expected)), logical
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.lists(row, min_size=1, max_size=60), st.booleans(), st.sampled_from(["\n", "\r\n"]),
+       st.sampled_from([2, 3, 4]), st.sampled_from([0, 1 << 30]))
+def test_kernel_takes_every_valid_capture_in_time_order(rows, header, eol, width, split_min_bytes):
+    layout = dict(zip(["t_raw", "counts", "adc", "dir"][:width], range(width)))
+    rows = sorted(rows, key=lambda r: r["t_raw"])
+    data = (((",".join(NAMES[:width]) + eol) if header else "") +
+            eol.join(format_line(r, layout, width) for r in rows) + eol).encode()
+    lay, out = _kernel(data, split_min_bytes)
+    assert out is not None
+    assert out[lay.layout["counts"]].tolist() == [r["counts"] for r in rows]
+    assert out[lay.layout["t_raw"]].tolist() == [int(r["t_raw"]) for r in rows]
+
+
+@pytest.mark.parametrize("body", [
+    b"5,1,2,3\n4,1,2,3\n",                    # time goes back
+    b"5,1,2,3\n\n6,1,2,3\n",                  # blank line
+    b"5,1,2,3\r6,1,2,3\n",                    # stray carriage return
+    b"5.5,1,2,3\n6,1,2,3\n",                  # decimal time: the Arrow reader's case
+    b"+5,1,2,3\n6,1,2,3\n", b"5, 1,2,3\n6,1,2,3\n", b"5,1,2,3\n6,1,2,-\n",
+])
+def test_kernel_declines_what_it_does_not_read_alike(body):
+    data = b"t_ms,counts,adc,dir\n" + body
+    assert _kernel(data, 0)[1] is None
+
+
+def test_halves_meeting_out_of_time_order_are_declined():
+    first, second = b"10,1,2,3\n" * 8, b"9,1,2,3\n" * 9       # the cut falls between the two blocks
+    assert read_int_rows(memoryview(first + second), 4, 0, 0) is None
+    assert read_int_rows(memoryview(first + first), 4, 0, 0).shape == (4, 16)
+
+
+def test_large_capture_gives_the_same_tables_through_the_kernel_and_through_arrow(monkeypatch):
+    data = make_capture(300_000)                               # 5.4 MB: above KERNEL_MIN_BYTES
+    assert len(data) >= plain.KERNEL_MIN_BYTES
+    lay = plain.plain_layout(data, CFG.columns, "big.csv")
+    compiled = plain.read_plain_rows(data, lay)
+    monkeypatch.setattr(plain, "KERNEL_MIN_BYTES", len(data) + 1)
+    arrow = plain.read_plain_rows(data, lay)
+    assert list(compiled) == list(arrow)
+    for k in arrow:
+        assert compiled[k].dtype == arrow[k].dtype and np.array_equal(compiled[k], arrow[k])
+    by_arrow = read_capture(data, CFG, "big.csv", "big").runs[0].signals
+    monkeypatch.undo()
+    assert read_capture(data, CFG, "big.csv", "big").runs[0].signals.equals(by_arrow)
