@@ -291,6 +291,9 @@ class RunReport:
     skipped: list[str] = field(default_factory=list)
     removed: list[str] = field(default_factory=list)
     wall_s: float = 0.0
+    pool_ready_s: float | None = None      # when the first worker could take a recording (from the run's start)
+    ingested_ahead: int = 0                # recordings this process ingested meanwhile
+    started: float = 0.0                   # perf_counter at the run's start
 
     @property
     def failed(self) -> list[dict]:
@@ -401,7 +404,8 @@ def _failed_ahead(csv: Path, processed: Path, info: dict) -> dict:
             "timing_s": {"ingest": info["wall_s"]}, "cpu_s": info["cpu_s"], "cpu_stage_s": {"ingest": info["cpu_s"]}}
 
 
-def _execute(todo: list[tuple[Path, Stamp]], processed: Path, jobs: int, show_progress: bool) -> list[dict]:
+def _execute(todo: list[tuple[Path, Stamp]], processed: Path, jobs: int, show_progress: bool,
+             report: RunReport | None = None) -> list[dict]:
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     results: list[dict] = []
@@ -425,6 +429,8 @@ def _execute(todo: list[tuple[Path, Stamp]], processed: Path, jobs: int, show_pr
             starting.start()
             ahead = _ingest_ahead(todo, processed, starting)
             starting.join()
+            if report is not None:
+                report.pool_ready_s, report.ingested_ahead = time.perf_counter() - report.started, len(ahead)
             failed = {csv.name for csv, _stamp in todo if ahead.get(csv.name, {}).get("error")}
             for csv, _stamp in todo:
                 if csv.name in failed:
@@ -466,8 +472,8 @@ def run_pipeline(raw: Path, processed: Path, *, jobs: int = 2, force: bool = Fal
     raw, processed = Path(raw), Path(processed)
     if not raw.is_dir():
         raise PdrError("raw folder not found (expected a folder of <name>.csv recordings)", path=raw)
-    t0 = time.perf_counter()
-    report = RunReport()
+    report = RunReport(started=time.perf_counter())
+    t0 = report.started
     with processed_lock(processed):
         recordings = sorted(raw.glob("*.csv"))
         code = code if code is not None else code_version()
@@ -479,7 +485,7 @@ def run_pipeline(raw: Path, processed: Path, *, jobs: int = 2, force: bool = Fal
             else:
                 todo.append((csv, stamp))
         if todo:
-            report.ran = _execute(todo, processed, jobs, show_progress)
+            report.ran = _execute(todo, processed, jobs, show_progress, report)
         report.removed = prune_orphans(processed, raw, recordings)
         summary_csv = processed / "summary.csv"
         if todo or report.removed or not summary_csv.is_file():
