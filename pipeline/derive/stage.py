@@ -128,7 +128,8 @@ def derive_tables(signals: pd.DataFrame, cfg: RigConfig) -> DerivedTables:
         energy = run_energy(t, smooth, omega, theta, dirs, spec)
         energy["energy_paper_logged_current_j"] = paper_energy_j(current, spec.v_rms, spec.period_s)
 
-    modes = [MODE_OF_DIR[int(d)] for d in phases["dir"]]
+    phase_dir, phase_duration = column(phases, "dir"), column(phases, "duration_s", float)
+    modes = [MODE_OF_DIR[int(d)] for d in phase_dir]
     summary = {
         "samples": int(len(t)),
         "counts": {"samples": int(len(t)), "phases": int(len(phases)), "reversals": int(len(over)),
@@ -143,9 +144,8 @@ def derive_tables(signals: pd.DataFrame, cfg: RigConfig) -> DerivedTables:
         "phases": {
             "count": int(len(phases)), "switches": int(len(reversal_indices(dirs))),
             "mode_sequence": modes,
-            "ended_at_guard": int(phases["ended_at_guard"].sum()),
-            "duration_s": {name: describe(phases.loc[phases["dir"] == d, "duration_s"])
-                           for d, name in ((1, "q1"), (-1, "q2"))},
+            "ended_at_guard": int(column(phases, "ended_at_guard").sum()),
+            "duration_s": {name: describe(phase_duration[phase_dir == d]) for d, name in ((1, "q1"), (-1, "q2"))},
         },
         "theta_rad": describe(theta),
         "omega_rad_s": describe(omega),
