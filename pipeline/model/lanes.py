@@ -32,7 +32,7 @@ from numba.extending import intrinsic
 from numba.np.arrayobj import make_array
 
 from pipeline.model.kernels import TIME_EPS, decide
-from pipeline.model.linear import phi_gamma_into, step_key, step_lengths
+from pipeline.model.linear import phi_gamma_into, phi_gamma_lanes, step_key, step_lengths
 
 # Gamma(h - a) remembered per set (split lengths of a fixed Td: a few).
 MAX_SPLITS = 8
@@ -127,15 +127,13 @@ def _step_matrices(A, B, lengths) -> np.ndarray:
     """(Phi, Gamma) of every set for every distinct length, laid out (length, entry, set) for the lanes."""
     m = A.shape[0]
     P = np.empty((len(lengths), 12, m))
-    out = np.empty(12)
-    for q in range(m):
-        for j in range(len(lengths)):
-            phi_gamma_into(A[q], B[q], lengths[j], out)
-            P[j, :, q] = out
+    sets = np.arange(m)
+    for j in range(len(lengths)):
+        phi_gamma_lanes(A, B, sets, np.full(m, lengths[j]), P[j])
     return P
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _split_gamma(q, key, A, B, keys, gammas, n_split, G) -> int:
     """The slot of Gamma(key) in set q's cache of split lengths (computed on first use, as ``kernels._delayed``)."""
     c = 0
@@ -149,6 +147,73 @@ def _split_gamma(q, key, A, B, keys, gammas, n_split, G) -> int:
         gammas[q, c, 0], gammas[q, c, 1], gammas[q, c, 2] = G[9], G[10], G[11]
         n_split[q] += 1
     return c
+
+
+@njit(cache=True)
+def _window_sums(t, longest) -> np.ndarray:
+    """Distinct rounded t[k + r] - t[k] (r >= 1) up to ``longest`` (+ one step): the spans from a decision
+    to the end of the step its command can land in."""
+    n = len(t)
+    sums = np.empty(64)
+    found = 0
+    for r in range(1, n):
+        any_short = False
+        for k in range(n - r):
+            w = step_key(t[k + r] - t[k])
+            if w - (t[k + r] - t[k + r - 1]) > longest + TIME_EPS:
+                continue
+            any_short = True
+            c = 0
+            while c < found and sums[c] != w:
+                c += 1
+            if c == found:
+                if found == len(sums):
+                    return sums[:found]
+                sums[found] = w
+                found += 1
+        if not any_short:
+            break
+    return sums[:found]
+
+
+@njit(cache=True)
+def _split_candidates(t, A, B, Td, undelayed, keys, gammas, n_split) -> None:
+    """Fill every delayed set's split cache with Gamma(W - Td) for the spans W that can end its commands'
+    steps (Td < W <= Td + a step), computed side by side (``phi_gamma_lanes``) before the loop.
+
+    A head start only: ``_split_gamma`` finds them there, and computes any it
+    misses (a key rounded the other way, a full cache) -- the values are the
+    same either way.
+    """
+    m = len(Td)
+    longest = 0.0
+    for q in range(m):
+        if not undelayed[q]:
+            longest = max(longest, Td[q])
+    sums = _window_sums(t, longest)
+    hmax = 0.0
+    for k in range(len(t) - 1):
+        hmax = max(hmax, t[k + 1] - t[k])
+    sets = np.empty(m * MAX_SPLITS, dtype=np.int64)
+    lengths = np.empty(m * MAX_SPLITS)
+    count = 0
+    for q in range(m):
+        if undelayed[q]:
+            continue
+        for w in sums:
+            if Td[q] + TIME_EPS < w <= Td[q] + hmax + TIME_EPS and n_split[q] < MAX_SPLITS:
+                key = step_key(w - Td[q])
+                keys[q, n_split[q]] = key
+                n_split[q] += 1
+                sets[count], lengths[count] = q, key
+                count += 1
+    out = np.empty((12, count))
+    phi_gamma_lanes(A, B, sets[:count], lengths[:count], out)
+    slot = np.zeros(m, dtype=np.int64)
+    for i in range(count):
+        q = sets[i]
+        gammas[q, slot[q], 0], gammas[q, slot[q], 1], gammas[q, slot[q], 2] = out[9, i], out[10, i], out[11, i]
+        slot[q] += 1
 
 
 @njit(cache=True)
@@ -205,6 +270,8 @@ def run_linear_lanes(t, A, B, R, guard, V, Td, x0, log, closed_loop, start, firs
         thr[q] = guard_threshold(R[q], guard[q])
         undelayed[q] = closed_loop and Td[q] == 0.0
     delayed = not undelayed.all()
+    delayed_set = ~undelayed
+    flags = np.zeros(8 * ((m + 7) // 8), dtype=np.uint8)     # whole words for ``_schedule``
     S = np.empty((3, m))
     d_old, d_new = np.zeros(m), np.empty(m)
     U = np.zeros(m)                                   # motor voltage of delayed sets: off until a command arrives
@@ -216,6 +283,8 @@ def run_linear_lanes(t, A, B, R, guard, V, Td, x0, log, closed_loop, start, firs
     keys, gammas, n_split = np.empty((m, MAX_SPLITS)), np.empty((m, MAX_SPLITS, 3)), np.zeros(m, dtype=np.int64)
     touched, moved = np.empty(m, dtype=np.int64), np.zeros(m, dtype=np.bool_)
     E, G = np.empty((3, m)), np.empty(12)
+    if delayed:
+        _split_candidates(t, A, B, Td, undelayed, keys, gammas, n_split)
     Yf = Y.reshape(Y.size)
     Sf = S.reshape(3 * m)
     for q in range(m):
@@ -241,7 +310,8 @@ def run_linear_lanes(t, A, B, R, guard, V, Td, x0, log, closed_loop, start, firs
         if delayed:
             if len(events) - n_events < m:             # room for every set changing at once
                 events, nxt = _grown(events, nxt, n_events + m)
-            n_events = _schedule(k, t, Td, V, d_old, d_new, undelayed, events, nxt, head, tail, n_events)
+            if _flag_changes(d_old, d_new, delayed_set, flags, m):
+                n_events = _schedule(k, t, Td, V, d_new, flags, events, nxt, head, tail, n_events)
         stream_copy(Yf, k * 3 * m, Sf)
         for q in range(m):
             dirs[k, q] = np.int8(d_new[q])
@@ -250,28 +320,44 @@ def run_linear_lanes(t, A, B, R, guard, V, Td, x0, log, closed_loop, start, firs
 
 
 @njit(cache=True)
-def _schedule(k, t, Td, V, d_old, d_new, undelayed, events, nxt, head, tail, n_events) -> int:
-    """File the commands of delayed sets that changed at sample k under the step they reach the motor in
-    (``arrive < t_s+1 - TIME_EPS``, as ``kernels._delayed`` applies its queue); returns the new event count."""
+def _schedule(k, t, Td, V, d_new, flags, events, nxt, head, tail, n_events) -> int:
+    """File the commands of the sets flagged at sample k (``_flag_changes``) under the step they reach the
+    motor in (``arrive < t_s+1 - TIME_EPS``, as ``kernels._delayed`` applies its queue); returns the event count."""
     n = len(t)
-    for q in range(len(d_new)):
-        if d_new[q] == d_old[q] or undelayed[q]:
+    words = flags.view(np.uint64)                       # eight sets at a time: most are unflagged
+    for wi in range(len(words)):
+        if words[wi] == 0:
             continue
-        arrive = t[k] + Td[q]
-        s = k
-        while s < n - 1 and not arrive < t[s + 1] - TIME_EPS:
-            s += 1
-        if s == n - 1:                                  # arrives after the last sample
-            continue
-        events[n_events, 0], events[n_events, 1], events[n_events, 2] = q, arrive, d_new[q] * V[q]
-        nxt[n_events] = -1
-        if head[s] < 0:
-            head[s] = n_events
-        else:
-            nxt[tail[s]] = n_events
-        tail[s] = n_events
-        n_events += 1
+        for q in range(8 * wi, 8 * wi + 8):
+            if not flags[q]:
+                continue
+            arrive = t[k] + Td[q]
+            s = k
+            while s < n - 1 and not arrive < t[s + 1] - TIME_EPS:
+                s += 1
+            if s == n - 1:                              # arrives after the last sample
+                continue
+            events[n_events, 0], events[n_events, 1], events[n_events, 2] = q, arrive, d_new[q] * V[q]
+            nxt[n_events] = -1
+            if head[s] < 0:
+                head[s] = n_events
+            else:
+                nxt[tail[s]] = n_events
+            tail[s] = n_events
+            n_events += 1
     return n_events
+
+
+@njit(cache=True, error_model="numpy")
+def _flag_changes(d_old, d_new, delayed_set, flags, m) -> int:
+    """flags[q] = 1 where a delayed set's command changed; returns how many (vectorised: most samples
+    change none, or a few of many sets)."""
+    changes = 0
+    for q in range(np.uint64(0), np.uint64(m)):
+        f = np.uint8((d_new[q] != d_old[q]) & delayed_set[q])
+        flags[q] = f
+        changes += f
+    return changes
 
 
 @njit(cache=True)
