@@ -232,22 +232,22 @@ def _arrivals(j, t, Pj, A, B, S, U, events, head, nxt, keys, gammas, n_split, to
                 moved[q] = True
                 touched[n_touched] = q
                 n_touched += 1
-                E[0, q] = E[1, q] = E[2, q] = 0.0
+                E[q, 0] = E[q, 1] = E[q, 2] = 0.0
             a = events[e, 1] - t[j]
             if a <= TIME_EPS:
-                E[0, q] += Pj[9, q] * du
-                E[1, q] += Pj[10, q] * du
-                E[2, q] += Pj[11, q] * du
+                E[q, 0] += Pj[9, q] * du
+                E[q, 1] += Pj[10, q] * du
+                E[q, 2] += Pj[11, q] * du
             else:
                 c = _split_gamma(q, step_key((t[j + 1] - t[j]) - a), A, B, keys, gammas, n_split, G)
-                E[0, q] += gammas[q, c, 0] * du
-                E[1, q] += gammas[q, c, 1] * du
-                E[2, q] += gammas[q, c, 2] * du
+                E[q, 0] += gammas[q, c, 0] * du
+                E[q, 1] += gammas[q, c, 1] * du
+                E[q, 2] += gammas[q, c, 2] * du
         e = nxt[e]
     for i in range(n_touched):
         q = touched[i]
         moved[q] = False
-        S[0, q], S[1, q], S[2, q] = S[0, q] + E[0, q], S[1, q] + E[1, q], S[2, q] + E[2, q]
+        S[0, q], S[1, q], S[2, q] = S[0, q] + E[q, 0], S[1, q] + E[q, 1], S[2, q] + E[q, 2]
     return n_touched
 
 
@@ -282,7 +282,7 @@ def run_linear_lanes(t, A, B, R, guard, V, Td, x0, log, closed_loop, start, firs
     n_events = 0
     keys, gammas, n_split = np.empty((m, MAX_SPLITS)), np.empty((m, MAX_SPLITS, 3)), np.zeros(m, dtype=np.int64)
     touched, moved = np.empty(m, dtype=np.int64), np.zeros(m, dtype=np.bool_)
-    E, G = np.empty((3, m)), np.empty(12)
+    E, G = np.empty((m, 3)), np.empty(12)               # per set: its corrections, one cache line
     if delayed:
         _split_candidates(t, A, B, Td, undelayed, keys, gammas, n_split)
     Yf = Y.reshape(Y.size)
@@ -297,10 +297,11 @@ def run_linear_lanes(t, A, B, R, guard, V, Td, x0, log, closed_loop, start, firs
             if delayed:
                 n_moved = _arrivals(k - 1, t, P[j], A, B, S, U, events, head, nxt, keys, gammas, n_split, touched, moved,
                                     E, G)
-                for i in range(n_moved):                  # re-decide where a correction moved the state
-                    q = touched[i]
-                    d_new[q] = decide(k, int(d_old[q]), S[2, q] / R[q], guard[q], log, closed_loop, start,
-                                      first, dir0)
+                if closed_loop and k > start:           # re-decide where a correction moved the state
+                    for i in range(n_moved):
+                        q = touched[i]
+                        dq = d_old[q]
+                        d_new[q] = dq - 2.0 * dq * (dq * S[2, q] >= thr[q])
             if not closed_loop or k < start:
                 d_new[:] = log[k]
             elif k == start:

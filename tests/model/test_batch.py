@@ -82,8 +82,8 @@ def test_delay_longer_than_several_steps_and_a_repeated_instant_equal_single_cal
     batch = simulate_batch(specs, t)
     for i, s in enumerate(specs):
         r = simulate(s, t)
-        np.testing.assert_array_equal(batch.dir[i], r.dir)
-        np.testing.assert_allclose(batch.theta[i], r.theta, rtol=0, atol=1e-11)
+        for f in FIELDS + ("dir",):
+            assert np.array_equal(getattr(batch, f)[i], getattr(r, f)), f
 
 
 def test_step_matrices_match_scipy_expm():
@@ -140,3 +140,32 @@ def test_guard_threshold_is_the_least_delta_reaching_the_guard():
         assert x / R >= g and np.nextafter(x, -np.inf) / R < g
         for dl in x + np.arange(-40, 41) * np.spacing(x):
             assert (dl / R >= g) == (dl >= x) and (-dl / R <= -g) == (-(-dl) >= x)
+
+
+def test_irregular_instants_with_many_split_lengths_are_the_single_call_to_the_last_bit():
+    # spacings of 40-60 ms: each set meets more split lengths than its cache holds (computed again on a miss),
+    # delays from none to several steps, more sets than one chunk of side-by-side exponentials
+    rng = np.random.default_rng(9)
+    t = np.cumsum(rng.integers(40, 61, 200)) / 1000.0
+    specs = [replace(s, Td=float(td)) for s, td in zip(_linear_sets(n=70, seed=10), rng.choice([0.0, 0.013, 0.07, 0.21], 70))]
+    log = simulate(BASE, t).dir.copy()
+    for kw in ({}, {"dir_log": log, "closed_loop": False}):
+        batch = simulate_batch(specs, t, **kw)
+        for i, s in enumerate(specs):
+            r = simulate(s, t, **kw)
+            for f in FIELDS + ("dir",):
+                assert np.array_equal(getattr(batch, f)[i], getattr(r, f)), f
+
+
+def test_side_by_side_exponentials_are_phi_gamma_to_the_last_bit():
+    # lanes needing different numbers of squarings share a chunk; more lanes than one chunk
+    from pipeline.model.linear import LANE_CHUNK, phi_gamma, phi_gamma_lanes
+    specs = _linear_sets(n=50, seed=11)
+    A, B = _stacked_state_matrices(specs)
+    rng = np.random.default_rng(12)
+    sets = rng.integers(0, len(specs), 3 * LANE_CHUNK + 5)
+    h = rng.choice([0.0, 1e-4, 0.013, 0.05, 0.051, 0.3, 2.0], len(sets))
+    out = np.empty((12, len(sets)))
+    phi_gamma_lanes(A, B, sets, h, out)
+    for i, (q, hh) in enumerate(zip(sets, h)):
+        assert np.array_equal(out[:, i], phi_gamma(A[q], B[q], hh))
