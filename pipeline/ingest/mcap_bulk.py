@@ -6,7 +6,8 @@ per-sample JSON channel against log_time with no setup.  So the message
 records are built column-wise instead: the JSON payloads are formatted by
 pyarrow string kernels (shortest round-trip float text), each record's
 31-byte header is a numpy structured array, and ``binary_join_element_wise``
-glues them into one contiguous buffer that is the chunk content.  Only the
+(from ``JOIN_KERNEL_MIN_ROWS`` samples on, the same join compiled in
+``records_kernel``) glues them into one contiguous buffer that is the chunk content.  Only the
 few records around it (header, schemas, channels, chunk, message index,
 summary, footer) go through ``mcap.records``.  The layout is the one
 ``mcap.writer.Writer`` produces (chunked, LZ4, message indexes, statistics,
@@ -37,6 +38,7 @@ CHUNK_BYTES = 1 << 20          # uncompressed chunk size, as mcap.writer.Writer'
 BUILDERS = 2                   # threads building chunks while this one writes them in order
 LOOKAHEAD = 4                  # chunks built ahead of the writer: bounds the JSON held in memory
 LIBRARY = "pdr ingest (mcap_bulk)"
+JOIN_KERNEL_MIN_ROWS = 200_000  # from here on records are glued by records_kernel (numba) instead of Arrow
 _MSG_HEADER = np.dtype([("op", "u1"), ("len", "<u8"), ("channel", "<u2"), ("seq", "<u4"),
                         ("log_time", "<u8"), ("publish_time", "<u8")])        # 31 bytes, packed
 
@@ -69,9 +71,11 @@ def value_text(values: np.ndarray) -> pa.Array:
     return pc.cast(arr, pa.string())
 
 
-def _records(fields: dict[str, np.ndarray], channel_id: int, log_time: np.ndarray) -> pa.Array:
+def _records(fields: dict[str, np.ndarray], channel_id: int, log_time: np.ndarray, compiled: bool = False
+             ) -> pa.Array:
     """Complete Message records, one per row: opcode, length, header fields, then the JSON payload
-    ``{"a":1,"b":0.5}`` (values as ``value_text``), glued in one Arrow join."""
+    ``{"a":1,"b":0.5}`` (values as ``value_text``), glued in one Arrow join, or with ``compiled`` by
+    ``records_kernel`` (the same bytes for ~5x less CPU)."""
     n = len(log_time)
     literals = [("{" if k == 0 else ",") + json.dumps(name) + ":" for k, name in enumerate(fields)] + ["}"]
     texts = [value_text(values).cast(pa.binary()) for values in fields.values()]
@@ -83,6 +87,10 @@ def _records(fields: dict[str, np.ndarray], channel_id: int, log_time: np.ndarra
     head["seq"] = np.arange(n, dtype=np.uint64) & 0xFFFFFFFF
     head["log_time"] = log_time
     head["publish_time"] = log_time
+    if compiled:
+        from pipeline.ingest.records_kernel import join_records
+        return join_records(head.view(np.uint8).reshape(n, _MSG_HEADER.itemsize), [lit.encode() for lit in literals],
+                            texts)
     heads = pa.Array.from_buffers(pa.binary(), n, [None, pa.py_buffer(np.arange(0, 31 * n + 1, 31, dtype=np.int32)),
                                                    pa.py_buffer(head)])
     parts = [heads]
@@ -98,10 +106,10 @@ class _ChunkData:
     message_offsets: np.ndarray          # of each message in the uncompressed chunk content
 
 
-def _chunk(fields: dict[str, np.ndarray], channel_id: int, log_time: np.ndarray) -> _ChunkData:
-    """One channel's messages of one block of samples as a compressed chunk (Arrow, lz4 and crc32
-    release the GIL, so blocks are built on two threads)."""
-    recs = _records(fields, channel_id, log_time)
+def _chunk(fields: dict[str, np.ndarray], channel_id: int, log_time: np.ndarray, compiled: bool) -> _ChunkData:
+    """One channel's messages of one block of samples as a compressed chunk (Arrow, the compiled join,
+    lz4 and crc32 release the GIL, so blocks are built on two threads)."""
+    recs = _records(fields, channel_id, log_time, compiled)
     off = np.frombuffer(recs.buffers()[1], dtype=np.int32, count=len(recs) + 1).astype(np.int64)
     raw = memoryview(recs.buffers()[2])[off[0]:off[-1]]
     chunk = Chunk(compression="lz4", data=lz4.frame.compress(raw), message_start_time=int(log_time.min()),
@@ -152,6 +160,9 @@ def write_mcap(out: IO[bytes], channels: list[ChannelBatch], log_time_ns: np.nda
                                                    log_time_ns[sample]))).as_py() / max(1, sample.stop)
                   for ch in channels), default=1.0)
     per_block = max(1, int(chunk_bytes // widest))
+    compiled = n >= JOIN_KERNEL_MIN_ROWS
+    if compiled:
+        import pipeline.ingest.records_kernel  # noqa: F401  (imported here, not by two builder threads at once)
     chunk_indexes = []
 
     def write_chunk(cid: int, t: np.ndarray, job) -> None:
@@ -175,7 +186,7 @@ def write_mcap(out: IO[bytes], channels: list[ChannelBatch], log_time_ns: np.nda
             t = log_time_ns[a:a + per_block]
             for cid, ch in enumerate(channels, start=1):
                 fields = {name: v[a:a + per_block] for name, v in ch.fields.items()}
-                pending.append((cid, t, pool.submit(_chunk, fields, cid, t)))
+                pending.append((cid, t, pool.submit(_chunk, fields, cid, t, compiled)))
                 if len(pending) > LOOKAHEAD:
                     write_chunk(*pending.popleft())
         while pending:
