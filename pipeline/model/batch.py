@@ -2,18 +2,16 @@
 
 For linear plants (viscous friction, driver drop, rack inertia, spring scale,
 loop delay and sensor offset -- everything but Coulomb friction and backlash)
-the m sets run through compiled kernels in one call, per set one matrix
-exponential per distinct step length, then the per-sample steps:
-
-- closed loop without loop delay (the common fit): ``kernels.run_linear_lanes``,
-  the sets side by side (sample loop outside, sets inside, vectorised), with
-  the single call's arithmetic per set, so equal to it to the last bit (tested);
-- otherwise ``kernels.run_linear_batch``, the very loop ``simulate`` runs for
-  one set, set after set.
+the m sets run side by side through one compiled kernel
+(``lanes.run_linear_lanes``): per set its exact step matrices for each distinct
+step length, then sample after sample every set's step, with the single call's
+arithmetic per set, so equal to ``simulate`` to the last bit (tested), closed
+loop or replay, with or without loop delay.
 
 The batch saves the ~55 us of Python around each single call (argument checks,
-kernel dispatch, result packaging).  Non-smooth specs (Tc, gap) or the
-continuous guard fall back to a loop of ``simulate`` calls.
+kernel dispatch, result packaging); its own Python is one pass over the specs
+(``spec_columns``).  Non-smooth specs (Tc, gap) or the continuous guard fall
+back to a loop of ``simulate`` calls.
 """
 
 from __future__ import annotations
@@ -77,7 +75,7 @@ def simulate_batch(specs: Sequence[PlantSpec], t: np.ndarray | None = None, *, d
         raise PdrError("expected at least one parameter set", key="specs")
     plan = _plan(specs[0], t, duration, dir0, dir_log, closed_loop, guard)
     columns = spec_columns(specs)
-    linear = not (columns[TC].any() or columns[GAP].any())       # PlantSpec.is_linear of every set
+    linear = not (columns[ROW_TC].any() or columns[ROW_GAP].any())       # PlantSpec.is_linear of every set
     if not (linear and (guard == "sampled" or not closed_loop)):
         runs = [simulate(s, plan.t, x0=x0, dir0=dir0, dir_log=dir_log, closed_loop=closed_loop, guard=guard)
                 for s in specs]
@@ -85,8 +83,9 @@ def simulate_batch(specs: Sequence[PlantSpec], t: np.ndarray | None = None, *, d
     return _run_lanes(columns, plan, np.asarray(x0, dtype=float))
 
 
-# Row order of ``spec_columns``: the matrix parameters (``MATRIX_PARAMS``), then the spec's own terms.
-R_, GUARD, V_DRIVE, TD, I0, TC, GAP = 0, 9, 10, 11, 12, 13, 14
+# Rows of ``spec_columns``: the matrix parameters (``MATRIX_PARAMS``, R first), then the spec's own terms.
+ROW_R, ROW_GUARD, ROW_V_DRIVE, ROW_TD, ROW_I0, ROW_TC, ROW_GAP = 0, 9, 10, 11, 12, 13, 14
+_ROW = struct.Struct("15d")
 
 
 def spec_columns(specs: list[PlantSpec]) -> np.ndarray:
@@ -102,12 +101,9 @@ def spec_columns(specs: list[PlantSpec]) -> np.ndarray:
     return np.frombuffer(rows).reshape(len(specs), _ROW.size // 8).T.copy()
 
 
-_ROW = struct.Struct("15d")
-
-
 def _stack(t: np.ndarray, runs: list[SimResult], columns: np.ndarray) -> BatchResult:
     return BatchResult(t=t, **{f: np.stack([getattr(r, f) for r in runs]) for f in ("omega", "current", "delta", "dir")},
-                       v_drive=columns[V_DRIVE], I0=columns[I0], R=columns[R_])
+                       v_drive=columns[ROW_V_DRIVE], I0=columns[ROW_I0], R=columns[ROW_R])
 
 
 def _run_lanes(columns: np.ndarray, plan, x0: np.ndarray) -> BatchResult:
@@ -115,7 +111,7 @@ def _run_lanes(columns: np.ndarray, plan, x0: np.ndarray) -> BatchResult:
     A, B = state_matrices_of(*columns[:len(MATRIX_PARAMS)])
     m, n = columns.shape[1], len(plan.t)
     Y, dirs = lane_outputs(m, n)
-    run_linear_lanes(plan.t, A, B, columns[R_], columns[GUARD], columns[V_DRIVE], columns[TD], x0, plan.log,
-                     plan.closed_loop, plan.start, plan.first, plan.dir0, Y, dirs)
+    run_linear_lanes(plan.t, A, B, columns[ROW_R], columns[ROW_GUARD], columns[ROW_V_DRIVE], columns[ROW_TD], x0,
+                     plan.log, plan.closed_loop, plan.start, plan.first, plan.dir0, Y, dirs)
     return BatchResult(t=plan.t, omega=Y[:, 1].T, current=Y[:, 0].T, delta=Y[:, 2].T, dir=dirs.T,
-                       v_drive=columns[V_DRIVE], I0=columns[I0], R=columns[R_])
+                       v_drive=columns[ROW_V_DRIVE], I0=columns[ROW_I0], R=columns[ROW_R])

@@ -139,39 +139,43 @@ def phi_gamma_lanes(A: np.ndarray, B: np.ndarray, sets: np.ndarray, h: np.ndarra
                 out[e, c0 + i] = W[(12 + e) * LANE_CHUNK + i]
 
 
+@njit(cache=True, inline="always")
+def _lane_pg(W, i):
+    """Lane i's (P, g) from the chunk's rows 12..23."""
+    c = LANE_CHUNK
+    return ((W[12 * c + i], W[13 * c + i], W[14 * c + i], W[15 * c + i], W[16 * c + i], W[17 * c + i],
+             W[18 * c + i], W[19 * c + i], W[20 * c + i]), (W[21 * c + i], W[22 * c + i], W[23 * c + i]))
+
+
+@njit(cache=True, inline="always")
+def _set_lane_pg(W, i, p, g) -> None:
+    c = LANE_CHUNK
+    W[12 * c + i], W[13 * c + i], W[14 * c + i], W[15 * c + i], W[16 * c + i], W[17 * c + i] = p[:6]
+    W[18 * c + i], W[19 * c + i], W[20 * c + i] = p[6:]
+    W[21 * c + i], W[22 * c + i], W[23 * c + i] = g
+
+
 @njit(cache=True, error_model="numpy")
 def _lanes_horner(W, w, r) -> None:
     """One Horner step (``_horner``) for every lane: lanes inside, so the loop vectorises."""
+    c = LANE_CHUNK
     for i in range(np.uint64(0), np.uint64(w)):
-        x = (W[0 * LANE_CHUNK + i], W[1 * LANE_CHUNK + i], W[2 * LANE_CHUNK + i], W[3 * LANE_CHUNK + i], W[4 * LANE_CHUNK + i], W[5 * LANE_CHUNK + i], W[6 * LANE_CHUNK + i], W[7 * LANE_CHUNK + i], W[8 * LANE_CHUNK + i])
-        b = (W[9 * LANE_CHUNK + i], W[10 * LANE_CHUNK + i], W[11 * LANE_CHUNK + i])
-        p = (W[12 * LANE_CHUNK + i], W[13 * LANE_CHUNK + i], W[14 * LANE_CHUNK + i], W[15 * LANE_CHUNK + i], W[16 * LANE_CHUNK + i], W[17 * LANE_CHUNK + i], W[18 * LANE_CHUNK + i], W[19 * LANE_CHUNK + i], W[20 * LANE_CHUNK + i])
-        g = (W[21 * LANE_CHUNK + i], W[22 * LANE_CHUNK + i], W[23 * LANE_CHUNK + i])
+        x = (W[i], W[c + i], W[2 * c + i], W[3 * c + i], W[4 * c + i], W[5 * c + i], W[6 * c + i], W[7 * c + i],
+             W[8 * c + i])
+        b = (W[9 * c + i], W[10 * c + i], W[11 * c + i])
+        p, g = _lane_pg(W, i)
         p, g = _horner(x, b, p, g, r)
-        W[12 * LANE_CHUNK + i], W[13 * LANE_CHUNK + i], W[14 * LANE_CHUNK + i], W[15 * LANE_CHUNK + i], W[16 * LANE_CHUNK + i], W[17 * LANE_CHUNK + i], W[18 * LANE_CHUNK + i], W[19 * LANE_CHUNK + i], W[20 * LANE_CHUNK + i] = p
-        W[21 * LANE_CHUNK + i], W[22 * LANE_CHUNK + i], W[23 * LANE_CHUNK + i] = g
+        _set_lane_pg(W, i, p, g)
 
 
 @njit(cache=True, error_model="numpy")
 def _lanes_square(W, w, k) -> None:
-    """Squaring number k for the lanes that need more than k (``W[24]``), the others unchanged."""
+    """Squaring number k for the lanes that need more than k (row 24), the others unchanged (a select)."""
     for i in range(np.uint64(0), np.uint64(w)):
-        p = (W[12 * LANE_CHUNK + i], W[13 * LANE_CHUNK + i], W[14 * LANE_CHUNK + i], W[15 * LANE_CHUNK + i], W[16 * LANE_CHUNK + i], W[17 * LANE_CHUNK + i], W[18 * LANE_CHUNK + i], W[19 * LANE_CHUNK + i], W[20 * LANE_CHUNK + i])
-        g = (W[21 * LANE_CHUNK + i], W[22 * LANE_CHUNK + i], W[23 * LANE_CHUNK + i])
+        p, g = _lane_pg(W, i)
         p2, g2 = _square(p, g)
         use = k < W[24 * LANE_CHUNK + i]
-        W[12 * LANE_CHUNK + i] = p2[0] if use else p[0]
-        W[13 * LANE_CHUNK + i] = p2[1] if use else p[1]
-        W[14 * LANE_CHUNK + i] = p2[2] if use else p[2]
-        W[15 * LANE_CHUNK + i] = p2[3] if use else p[3]
-        W[16 * LANE_CHUNK + i] = p2[4] if use else p[4]
-        W[17 * LANE_CHUNK + i] = p2[5] if use else p[5]
-        W[18 * LANE_CHUNK + i] = p2[6] if use else p[6]
-        W[19 * LANE_CHUNK + i] = p2[7] if use else p[7]
-        W[20 * LANE_CHUNK + i] = p2[8] if use else p[8]
-        W[21 * LANE_CHUNK + i] = g2[0] if use else g[0]
-        W[22 * LANE_CHUNK + i] = g2[1] if use else g[1]
-        W[23 * LANE_CHUNK + i] = g2[2] if use else g[2]
+        _set_lane_pg(W, i, p2 if use else p, g2 if use else g)
 
 
 @njit(cache=True)
