@@ -121,3 +121,19 @@ def test_large_capture_gives_the_same_tables_through_the_kernel_and_through_arro
     by_arrow = read_capture(data, CFG, "big.csv", "big").runs[0].signals
     monkeypatch.undo()
     assert read_capture(data, CFG, "big.csv", "big").runs[0].signals.equals(by_arrow)
+
+
+def test_small_captures_do_not_import_numba(tmp_path):
+    """``pdr run`` ingests small recordings in its main process: they must not pay numba's import and start."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    code = ("import sys, pathlib; from pipeline.ingest.stage import ingest_recording; "
+            f"ingest_recording(pathlib.Path({str(tmp_path / 'rec.csv')!r}), pathlib.Path({str(tmp_path / 'out')!r})); "
+            "print('numba' in sys.modules)")
+    (tmp_path / "rec.csv").write_bytes(make_capture(20_000))
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         cwd=Path(__file__).resolve().parents[2])
+    assert res.stdout.strip().splitlines()[-1] == "False"
+    assert (tmp_path / "out" / "rec" / "rec.mcap").is_file()
