@@ -217,38 +217,21 @@ def _split_candidates(t, A, B, Td, undelayed, keys, gammas, n_split) -> None:
 
 
 @njit(cache=True)
-def _arrivals(j, t, Pj, A, B, S, U, events, head, nxt, keys, gammas, n_split, touched, moved, E, G) -> int:
-    """Commands reaching their motors inside step j (t_j, t_j+1): ``kernels._delayed``'s correction
-    sum of Gamma(h - a) du, added to the common part in S; returns how many sets it moved (``touched[:n]``;
-    ``moved`` is all False again on return)."""
-    n_touched = 0
+def _arrivals(j, events, head, nxt, S, U, moved) -> int:
+    """Apply the commands reaching their motors inside step j: the motor takes its new voltage and, where it
+    changed, the state gets ``kernels._delayed``'s correction (worked out when the command was filed, see
+    ``_schedule``) added to the common part in S; returns how many sets moved (``moved[:n]``)."""
+    n_moved = 0
     e = head[j]
     while e >= 0:
         q = int(events[e, 0])
-        du = events[e, 2] - U[q]
-        U[q] = events[e, 2]
-        if du != 0.0:
-            if not moved[q]:
-                moved[q] = True
-                touched[n_touched] = q
-                n_touched += 1
-                E[q, 0] = E[q, 1] = E[q, 2] = 0.0
-            a = events[e, 1] - t[j]
-            if a <= TIME_EPS:
-                E[q, 0] += Pj[9, q] * du
-                E[q, 1] += Pj[10, q] * du
-                E[q, 2] += Pj[11, q] * du
-            else:
-                c = _split_gamma(q, step_key((t[j + 1] - t[j]) - a), A, B, keys, gammas, n_split, G)
-                E[q, 0] += gammas[q, c, 0] * du
-                E[q, 1] += gammas[q, c, 1] * du
-                E[q, 2] += gammas[q, c, 2] * du
+        U[q] = events[e, 4]
+        if events[e, 5] != 0.0:
+            S[0, q], S[1, q], S[2, q] = S[0, q] + events[e, 1], S[1, q] + events[e, 2], S[2, q] + events[e, 3]
+            moved[n_moved] = q
+            n_moved += 1
         e = nxt[e]
-    for i in range(n_touched):
-        q = touched[i]
-        moved[q] = False
-        S[0, q], S[1, q], S[2, q] = S[0, q] + E[q, 0], S[1, q] + E[q, 1], S[2, q] + E[q, 2]
-    return n_touched
+    return n_moved
 
 
 @njit(cache=True)
@@ -259,7 +242,7 @@ def run_linear_lanes(t, A, B, R, guard, V, Td, x0, log, closed_loop, start, firs
     ``kernels.run_linear_batch``.  theta = delta / R is left to the caller.
     A command of a delayed set decided at t_k reaches its motor at t_k + Td:
     it is filed under the step it lands in (``head``/``nxt``: one list per
-    step, in decision order) and applied there by ``_arrivals``.
+    step) with its effect (``_schedule``) and applied there (``_arrivals``).
     """
     n, m = len(t), len(R)
     lengths, idx = step_lengths(t)
@@ -275,14 +258,15 @@ def run_linear_lanes(t, A, B, R, guard, V, Td, x0, log, closed_loop, start, firs
     S = np.empty((3, m))
     d_old, d_new = np.zeros(m), np.empty(m)
     U = np.zeros(m)                                   # motor voltage of delayed sets: off until a command arrives
-    # commands on their way (set, arrival, volts), listed per step of arrival
-    events = np.empty((4 * m if delayed else 0, 3))          # grown as needed
-    head, tail = np.full(n, -1), np.full(n, -1)
+    # commands on their way, one record per set and step of arrival: set, correction (3), volts, changed
+    events = np.empty((4 * m if delayed else 0, 6))          # grown as needed
+    head = np.full(n, -1)
     nxt = np.empty(len(events), dtype=np.int64)
     n_events = 0
     keys, gammas, n_split = np.empty((m, MAX_SPLITS)), np.empty((m, MAX_SPLITS, 3)), np.zeros(m, dtype=np.int64)
-    touched, moved = np.empty(m, dtype=np.int64), np.zeros(m, dtype=np.bool_)
-    E, G = np.empty((m, 3)), np.empty(12)               # per set: its corrections, one cache line
+    splits = (keys, gammas, n_split, np.empty(12))
+    last = (np.zeros(m), np.full(m, -1), np.zeros(m, dtype=np.int64))
+    moved = np.empty(m, dtype=np.int64)
     if delayed:
         _split_candidates(t, A, B, Td, undelayed, keys, gammas, n_split)
     Yf = Y.reshape(Y.size)
@@ -295,11 +279,10 @@ def run_linear_lanes(t, A, B, R, guard, V, Td, x0, log, closed_loop, start, firs
             j = idx[k - 1]
             _common_step(P[j], S, d_old, d_new, U, undelayed, V, thr, m)
             if delayed:
-                n_moved = _arrivals(k - 1, t, P[j], A, B, S, U, events, head, nxt, keys, gammas, n_split, touched, moved,
-                                    E, G)
+                n_moved = _arrivals(k - 1, events, head, nxt, S, U, moved)
                 if closed_loop and k > start:           # re-decide where a correction moved the state
                     for i in range(n_moved):
-                        q = touched[i]
+                        q = moved[i]
                         dq = d_old[q]
                         d_new[q] = dq - 2.0 * dq * (dq * S[2, q] >= thr[q])
             if not closed_loop or k < start:
@@ -311,8 +294,10 @@ def run_linear_lanes(t, A, B, R, guard, V, Td, x0, log, closed_loop, start, firs
         if delayed:
             if len(events) - n_events < m:             # room for every set changing at once
                 events, nxt = _grown(events, nxt, n_events + m)
-            if _flag_changes(d_old, d_new, delayed_set, flags, m):
-                n_events = _schedule(k, t, Td, V, d_new, flags, events, nxt, head, tail, n_events)
+            n_changed = _flag_changes(d_old, d_new, delayed_set, flags, m)
+            if n_changed:
+                n_events = _schedule(k, t, Td, V, d_new, flags, P, idx, A, B, splits, last, events, nxt, head,
+                                     n_events)
         stream_copy(Yf, k * 3 * m, Sf)
         for q in range(m):
             dirs[k, q] = np.int8(d_new[q])
@@ -321,10 +306,20 @@ def run_linear_lanes(t, A, B, R, guard, V, Td, x0, log, closed_loop, start, firs
 
 
 @njit(cache=True)
-def _schedule(k, t, Td, V, d_new, flags, events, nxt, head, tail, n_events) -> int:
-    """File the commands of the sets flagged at sample k (``_flag_changes``) under the step they reach the
-    motor in (``arrive < t_s+1 - TIME_EPS``, as ``kernels._delayed`` applies its queue); returns the event count."""
+def _schedule(k, t, Td, V, d_new, flags, Pj_of, idx, A, B, splits, last, events, nxt, head, n_events) -> int:
+    """File the commands of the sets flagged at sample k (``_flag_changes``) under the step s they reach the
+    motor in (``arrive < t_s+1 - TIME_EPS``, as ``kernels._delayed`` applies its queue), with what they do there.
+
+    A set's commands arrive in the order they were decided, so the voltage a
+    command replaces is the one filed before it (``last``: volts, step and
+    event of each set's latest command): du and the correction
+    sum of Gamma(h - a) du are known now, in ``kernels._delayed``'s order (a
+    second command landing in the same step adds to the first's record).
+    Returns the event count.
+    """
     n = len(t)
+    keys, gammas, n_split, G = splits
+    last_volts, last_step, last_event = last
     words = flags.view(np.uint64)                       # eight sets at a time: most are unflagged
     for wi in range(len(words)):
         if words[wi] == 0:
@@ -338,13 +333,31 @@ def _schedule(k, t, Td, V, d_new, flags, events, nxt, head, tail, n_events) -> i
                 s += 1
             if s == n - 1:                              # arrives after the last sample
                 continue
-            events[n_events, 0], events[n_events, 1], events[n_events, 2] = q, arrive, d_new[q] * V[q]
-            nxt[n_events] = -1
-            if head[s] < 0:
-                head[s] = n_events
-            else:
-                nxt[tail[s]] = n_events
-            tail[s] = n_events
+            volts = d_new[q] * V[q]
+            du = volts - last_volts[q]
+            last_volts[q] = volts
+            e0 = e1 = e2 = 0.0
+            if du != 0.0:
+                a = arrive - t[s]
+                if a <= TIME_EPS:
+                    Pj = Pj_of[idx[s]]
+                    e0, e1, e2 = Pj[9, q] * du, Pj[10, q] * du, Pj[11, q] * du
+                else:
+                    c = _split_gamma(q, step_key((t[s + 1] - t[s]) - a), A, B, keys, gammas, n_split, G)
+                    e0, e1, e2 = gammas[q, c, 0] * du, gammas[q, c, 1] * du, gammas[q, c, 2] * du
+            if last_step[q] == s:                       # a second arrival in the same step: one record
+                r = last_event[q]
+                if du != 0.0:
+                    events[r, 1], events[r, 2], events[r, 3] = events[r, 1] + e0, events[r, 2] + e1, events[r, 3] + e2
+                    events[r, 5] = 1.0
+                events[r, 4] = volts
+                continue
+            events[n_events, 0] = q
+            events[n_events, 1], events[n_events, 2], events[n_events, 3] = 0.0 + e0, 0.0 + e1, 0.0 + e2
+            events[n_events, 4], events[n_events, 5] = volts, 1.0 if du != 0.0 else 0.0
+            nxt[n_events] = head[s]                     # the step's list, newest first: order within a step
+            head[s] = n_events                          # does not matter (one record per set)
+            last_step[q], last_event[q] = s, n_events
             n_events += 1
     return n_events
 
@@ -363,7 +376,7 @@ def _flag_changes(d_old, d_new, delayed_set, flags, m) -> int:
 
 @njit(cache=True)
 def _grown(events, nxt, need):
-    more = np.empty((max(2 * len(events), need), 3))
+    more = np.empty((max(2 * len(events), need), events.shape[1]))
     more[:len(events)] = events
     more_nxt = np.empty(len(more), dtype=np.int64)
     more_nxt[:len(nxt)] = nxt
