@@ -26,7 +26,7 @@ from pipeline.ingest.parse import (TIME_RE, TRIM, ParsedFile, Segment, has_contr
 _PLAIN = b"0123456789,-.\r\n"
 # From ~230k rows on, captures are read by the compiled reader (``plain_kernel``, ~4x less CPU than
 # Arrow's read); smaller ones by Arrow, where the saving is under ~20 ms and would not cover the
-# numba import and first call (0.3-1 s once per process).
+# numba import and first call (~1 s once per process).
 KERNEL_MIN_BYTES = 4 << 20
 
 

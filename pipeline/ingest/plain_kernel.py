@@ -23,6 +23,7 @@ import numpy as np
 
 MAX_DIGITS, MAX_TIME_DIGITS = 18, 15     # INT_RE's limit; 10**15 < 2**53, so every time is exact as float64
 SPLIT_MIN_BYTES = 1 << 20                # below this one thread reads the whole body
+CUT_WINDOW = 1 << 16
 
 
 @numba.njit(nogil=True, cache=True, boundscheck=False)
@@ -72,10 +73,12 @@ def parse_rows(buf: np.ndarray, time_field: int, out: np.ndarray) -> int:
 
 
 def _halves(buf: np.ndarray, split_min_bytes: int) -> list[np.ndarray]:
-    """``buf`` cut after the first line feed from its middle on (one piece when small)."""
+    """``buf`` cut after the first line feed from its middle on (one piece when small, or when no
+    line feed follows the middle within ``CUT_WINDOW`` bytes: no line of a plain capture is that long)."""
     if len(buf) < max(split_min_bytes, 2):
         return [buf]
-    cut = int(np.argmax(buf[len(buf) // 2:] == 10)) + len(buf) // 2 + 1
+    mid = len(buf) // 2
+    cut = int(np.argmax(buf[mid:mid + CUT_WINDOW] == 10)) + mid + 1
     return [buf[:cut], buf[cut:]] if buf[cut - 1] == 10 and cut < len(buf) else [buf]
 
 
