@@ -16,6 +16,7 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q -e '.[test]'
 	$(PY) -m pipeline.model.compile
+	$(PY) -m pipeline.ingest.compile
 	touch $(STAMP)
 
 setup: $(STAMP)
