@@ -9,8 +9,9 @@ Entry points for other stages:
   ``stage.ingest_signals(data, cfg, source, stem, processed) -> (runs, report, list[RunPaths])``:
       the pure core with each run's signals.parquet written in a worker thread beside the report.
 
-Modules: ``plain`` (fast path for clean captures), ``parse`` (general line-by-line path,
-quarantine, re-framing), ``segments`` (range rules, time order, resets), ``timing``,
-``convert`` (units, zero_v "auto"), ``mcap_bulk`` (vectorised MCAP writer), ``write``
-(files, atomic), ``cli`` (``pdr ingest``).
+Modules: ``plain`` (fast path for clean captures; ``plain_kernel``, its compiled reader for
+large ones), ``parse`` (general line-by-line path, quarantine, re-framing), ``segments``
+(range rules, time order, resets), ``timing``, ``convert`` (units, zero_v "auto"),
+``mcap_bulk`` (vectorised MCAP writer; ``records_kernel``, its compiled record join),
+``write`` (files, atomic), ``compile`` (the numba loops compiled at set-up), ``cli`` (``pdr ingest``).
 """
