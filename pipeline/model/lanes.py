@@ -133,7 +133,7 @@ def _step_matrices(A, B, lengths) -> np.ndarray:
     return P
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _split_gamma(q, key, A, B, keys, gammas, n_split, G) -> int:
     """The slot of Gamma(key) in set q's cache of split lengths (computed on first use, as ``kernels._delayed``)."""
     c = 0
@@ -286,7 +286,8 @@ def run_linear_lanes(t, A, B, R, guard, V, Td, x0, log, closed_loop, start, firs
                         dq = d_old[q]
                         d_new[q] = dq - 2.0 * dq * (dq * S[2, q] >= thr[q])
             if not closed_loop or k < start:
-                d_new[:] = log[k]
+                for q in range(m):
+                    d_new[q] = log[k]
             elif k == start:
                 for q in range(m):
                     d_new[q] = decide(k, int(d_old[q]), S[2, q] / R[q], guard[q], log, closed_loop, start,
@@ -376,10 +377,14 @@ def _flag_changes(d_old, d_new, delayed_set, flags, m) -> int:
 
 @njit(cache=True)
 def _grown(events, nxt, need):
+    """Room for ``need`` records: the records and links copied into larger arrays (plain loops: numba's
+    slice assignment of 2-d arrays costs ~9 s of JIT compile)."""
     more = np.empty((max(2 * len(events), need), events.shape[1]))
-    more[:len(events)] = events
     more_nxt = np.empty(len(more), dtype=np.int64)
-    more_nxt[:len(nxt)] = nxt
+    for e in range(len(events)):
+        for c in range(events.shape[1]):
+            more[e, c] = events[e, c]
+        more_nxt[e] = nxt[e]
     return more, more_nxt
 
 

@@ -34,7 +34,7 @@ def step_key(h: float) -> float:
     return round(h, KEY_DECIMALS)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _scaling(A: np.ndarray, B: np.ndarray, q: int, h: float) -> tuple[int, float]:
     """Squarings s and the scaled length h / 2^s that bring ||[[A[q], B[q]], [0, 0]] h||_inf to <= 0.25
     (A (m, 3, 3), B (m, 3): indexed in place, no per-set views)."""
@@ -45,7 +45,7 @@ def _scaling(A: np.ndarray, B: np.ndarray, q: int, h: float) -> tuple[int, float
     return s, h / (2.0 ** s)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _horner(x, b, p, g, r):
     """One Horner step on (P, g): P <- I + X P r, g <- (X g + b) r (3x3 unrolled, tuples in registers)."""
     x0, x1, x2, x3, x4, x5, x6, x7, x8 = x
@@ -61,7 +61,7 @@ def _horner(x, b, p, g, r):
              (x6 * g0 + x7 * g1 + x8 * g2 + b[2]) * r))
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _square(p, g):
     """One squaring of [[P, g], [0, 1]]: (P, g) <- (P P, P g + g)."""
     p0, p1, p2, p3, p4, p5, p6, p7, p8 = p
@@ -127,9 +127,8 @@ def phi_gamma_lanes(A: np.ndarray, B: np.ndarray, sets: np.ndarray, h: np.ndarra
         smax = 0
         for i in range(w):
             smax = max(smax, int(W[24 * LANE_CHUNK + i]))
-        W[12 * LANE_CHUNK:24 * LANE_CHUNK] = 0.0
         for i in range(w):                              # P = I, g = 0
-            W[12 * LANE_CHUNK + i] = W[16 * LANE_CHUNK + i] = W[20 * LANE_CHUNK + i] = 1.0
+            _set_lane_pg(W, i, (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0), (0.0, 0.0, 0.0))
         for j in range(12, 0, -1):
             _lanes_horner(W, w, 1.0 / j)
         for k in range(smax):
@@ -139,7 +138,7 @@ def phi_gamma_lanes(A: np.ndarray, B: np.ndarray, sets: np.ndarray, h: np.ndarra
                 out[e, c0 + i] = W[(12 + e) * LANE_CHUNK + i]
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _lane_pg(W, i):
     """Lane i's (P, g) from the chunk's rows 12..23."""
     c = LANE_CHUNK
@@ -147,7 +146,7 @@ def _lane_pg(W, i):
              W[18 * c + i], W[19 * c + i], W[20 * c + i]), (W[21 * c + i], W[22 * c + i], W[23 * c + i]))
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _set_lane_pg(W, i, p, g) -> None:
     c = LANE_CHUNK
     W[12 * c + i], W[13 * c + i], W[14 * c + i], W[15 * c + i], W[16 * c + i], W[17 * c + i] = p[:6]
