@@ -35,6 +35,16 @@ def _equal(batch, singles):
         assert np.array_equal(batch.result(i).dir, r.dir)
 
 
+def _same_bits(specs, t, **kw):
+    """simulate_batch equals one simulate call per set in every signal, to the last bit."""
+    batch = simulate_batch(specs, t, **kw)
+    for i, s in enumerate(specs):
+        r = simulate(s, t, **kw)
+        for f in FIELDS + ("dir",):
+            assert np.array_equal(getattr(batch, f)[i], getattr(r, f)), f
+    return batch
+
+
 def test_closed_loop_batch_equals_single_calls():
     specs = _linear_sets()
     batch = simulate_batch(specs, T)
@@ -79,11 +89,7 @@ def test_stacked_state_matrices_are_the_per_set_matrices():
 def test_delay_longer_than_several_steps_and_a_repeated_instant_equal_single_calls():
     t = np.concatenate([T[:40], T[39:80]])                 # one zero-length step
     specs = [replace(s, Td=td) for s, td in zip(_linear_sets(n=4, seed=4), (0.0, 0.03, 0.26, 0.5))]
-    batch = simulate_batch(specs, t)
-    for i, s in enumerate(specs):
-        r = simulate(s, t)
-        for f in FIELDS + ("dir",):
-            assert np.array_equal(getattr(batch, f)[i], getattr(r, f)), f
+    _same_bits(specs, t)
 
 
 def test_step_matrices_match_scipy_expm():
@@ -107,11 +113,7 @@ def test_batch_is_the_single_call_to_the_last_bit():
     specs = _linear_sets(seed=6)
     log = simulate(BASE, T).dir.copy()
     for kw in ({}, {"dir_log": log, "closed_loop": False}):
-        batch = simulate_batch(specs, T, **kw)
-        for i, s in enumerate(specs):
-            r = simulate(s, T, **kw)
-            for f in FIELDS + ("dir",):
-                assert np.array_equal(getattr(batch, f)[i], getattr(r, f)), f
+        _same_bits(specs, T, **kw)
 
 
 def test_undelayed_closed_loop_lanes_are_the_single_call_to_the_last_bit():
@@ -121,13 +123,10 @@ def test_undelayed_closed_loop_lanes_are_the_single_call_to_the_last_bit():
     log = simulate(BASE, T).dir.copy()
     log[:5] = 0
     for kw in ({}, {"dir_log": log, "x0": (0.01, 0.2, 0.003)}, {"dir0": -1}):
-        batch = simulate_batch(specs, T, **kw)
+        batch = _same_bits(specs, T, **kw)
         assert batch.dir.dtype == np.int8
         for i, s in enumerate(specs):
-            r = simulate(s, T, **kw)
-            for f in FIELDS + ("dir",):
-                assert np.array_equal(getattr(batch, f)[i], getattr(r, f)), f
-            assert np.array_equal(batch.result(i).theta, r.theta)
+            assert np.array_equal(batch.result(i).theta, simulate(s, T, **kw).theta)
     assert len({int(np.sum(np.diff(batch.dir[i]) != 0)) for i in range(len(specs))}) > 1
 
 
@@ -147,14 +146,11 @@ def test_irregular_instants_with_many_split_lengths_are_the_single_call_to_the_l
     # delays from none to several steps, more sets than one chunk of side-by-side exponentials
     rng = np.random.default_rng(9)
     t = np.cumsum(rng.integers(40, 61, 200)) / 1000.0
-    specs = [replace(s, Td=float(td)) for s, td in zip(_linear_sets(n=70, seed=10), rng.choice([0.0, 0.013, 0.07, 0.21], 70))]
+    delays = rng.choice([0.0, 0.013, 0.07, 0.21], 70)
+    specs = [replace(s, Td=float(td)) for s, td in zip(_linear_sets(n=70, seed=10), delays)]
     log = simulate(BASE, t).dir.copy()
     for kw in ({}, {"dir_log": log, "closed_loop": False}):
-        batch = simulate_batch(specs, t, **kw)
-        for i, s in enumerate(specs):
-            r = simulate(s, t, **kw)
-            for f in FIELDS + ("dir",):
-                assert np.array_equal(getattr(batch, f)[i], getattr(r, f)), f
+        _same_bits(specs, t, **kw)
 
 
 def test_side_by_side_exponentials_are_phi_gamma_to_the_last_bit():
