@@ -7,7 +7,8 @@ installing, so the first ``pdr run`` or test session on a fresh machine does
 not stall on it (``pdr run`` would otherwise compile in its forkserver and,
 for the non-linear paths, in each worker).  Each call below takes a distinct
 compiled path: closed loop and replay, with and without a loop delay, one set
-and a batch, the event-driven plant with every effect, the continuous guard.
+(``kernels``) and a batch (``lanes``, its sets side by side), the event-driven
+plant with every effect, the continuous guard.
 """
 
 from __future__ import annotations
