@@ -165,3 +165,11 @@ def test_side_by_side_exponentials_are_phi_gamma_to_the_last_bit():
     phi_gamma_lanes(A, B, sets, h, out)
     for i, (q, hh) in enumerate(zip(sets, h)):
         assert np.array_equal(out[:, i], phi_gamma(A[q], B[q], hh))
+
+
+def test_short_recordings_a_dead_drive_and_repeated_instants_are_the_single_call_to_the_last_bit():
+    specs = [replace(BASE, Td=td, v_drive=v) for td, v in ((0.0, 6.0), (0.03, 5.0), (0.2, 0.0), (0.05, 6.0))]
+    for t in (np.array([0.0]), np.array([0.0, 0.05]), np.array([0.0, 0.0, 0.0, 0.05, 0.05, 0.1])):
+        alternating = np.where(np.arange(len(t)) % 3 == 0, 1, -1).astype(np.int8)
+        for kw in ({}, {"dir_log": alternating, "closed_loop": False}, {"dir_log": np.zeros(len(t), np.int8)}):
+            _same_bits(specs, t, **kw)
