@@ -134,18 +134,21 @@ def _step_matrices(A, B, lengths) -> np.ndarray:
 
 
 @njit(cache=True)
-def _split_gamma(q, key, A, B, keys, gammas, n_split, G) -> int:
-    """The slot of Gamma(key) in set q's cache of split lengths (computed on first use, as ``kernels._delayed``)."""
-    c = 0
-    while c < n_split[q] and keys[q, c] != key:
-        c += 1
-    if c == n_split[q]:
-        if c == MAX_SPLITS:
-            c = n_split[q] = 0
-        phi_gamma_into(A[q], B[q], key, G)
-        keys[q, c] = key
-        gammas[q, c, 0], gammas[q, c, 1], gammas[q, c, 2] = G[9], G[10], G[11]
-        n_split[q] += 1
+def _new_split_gamma(q, key, A, B, keys, gammas, n_split, G) -> int:
+    """Gamma(key) computed into set q's cache of split lengths (as ``kernels._delayed``); its slot.
+
+    Only for a length the cache lacks (rare: ``_split_candidates`` fills it
+    first).  The look-up itself is written out in ``_schedule``: a call that
+    passes arrays updates a reference count per array, which cost ~20 ns per
+    delivered command here (2.8 -> 2.4 ms for 1000 delayed sets).
+    """
+    c = n_split[q]
+    if c == MAX_SPLITS:
+        c = n_split[q] = 0
+    phi_gamma_into(A[q], B[q], key, G)
+    keys[q, c] = key
+    gammas[q, c, 0], gammas[q, c, 1], gammas[q, c, 2] = G[9], G[10], G[11]
+    n_split[q] += 1
     return c
 
 
@@ -181,7 +184,7 @@ def _split_candidates(t, A, B, Td, undelayed, keys, gammas, n_split) -> None:
     """Fill every delayed set's split cache with Gamma(W - Td) for the spans W that can end its commands'
     steps (Td < W <= Td + a step), computed side by side (``phi_gamma_lanes``) before the loop.
 
-    A head start only: ``_split_gamma`` finds them there, and computes any it
+    A head start only: ``_schedule`` finds them there, and computes any it
     misses (a key rounded the other way, a full cache) -- the values are the
     same either way.
     """
@@ -344,7 +347,12 @@ def _schedule(k, t, Td, V, d_new, flags, Pj_of, idx, A, B, splits, last, events,
                     Pj = Pj_of[idx[s]]
                     e0, e1, e2 = Pj[9, q] * du, Pj[10, q] * du, Pj[11, q] * du
                 else:
-                    c = _split_gamma(q, step_key((t[s + 1] - t[s]) - a), A, B, keys, gammas, n_split, G)
+                    key = step_key((t[s + 1] - t[s]) - a)
+                    c = 0
+                    while c < n_split[q] and keys[q, c] != key:     # Gamma(key) in the set's cache
+                        c += 1
+                    if c == n_split[q]:
+                        c = _new_split_gamma(q, key, A, B, keys, gammas, n_split, G)
                     e0, e1, e2 = gammas[q, c, 0] * du, gammas[q, c, 1] * du, gammas[q, c, 2] * du
             if last_step[q] == s:                       # a second arrival in the same step: one record
                 r = last_event[q]
