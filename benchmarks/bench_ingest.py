@@ -105,15 +105,16 @@ def interleaved_best(k: int, csv: Path, out: Path) -> tuple[float, float, float,
 def breakdown(k: int, csv: Path, out: Path) -> dict[str, float]:
     """Best of k of each step of the Parquet path on its own (s): where the time goes.
 
-    read_capture's steps run one after the other (parse_plain reads this capture with plain_kernel);
-    then the Parquet write (check, encode row groups, each one's disk write started while the next
-    is encoded) runs in a worker thread beside the report, so the path costs about
-    read_capture + write_signals when the second core is free.
+    read_capture's steps run one after the other (read_plain_signals reads this capture straight
+    into its signals columns with plain_kernel.signal_rows); then the Parquet write (check, encode
+    row groups, each one's disk write started while the next is encoded) runs in a worker thread
+    beside the report, so the path costs about read_capture + write_signals when the second core
+    is free.
     """
     import pyarrow.parquet as pq
 
     from pipeline.config import default_config
-    from pipeline.ingest.plain import parse_plain
+    from pipeline.ingest.plain import read_plain_signals
     from pipeline.ingest.stage import capture_report, read_capture
     from pipeline.ingest.write import PARQUET_OPTIONS, signals_table, write_signals
     from pipeline.runs import run_paths
@@ -123,7 +124,8 @@ def breakdown(k: int, csv: Path, out: Path) -> dict[str, float]:
     df = cap.runs[0].signals
     table = signals_table(df, "bench")
     steps = {
-        "parse_plain (plain_kernel: two halves, two threads)": lambda j: parse_plain(data, cfg.columns, str(csv)),
+        "read_plain_signals (signal_rows: two halves, two threads)":
+            lambda j: read_plain_signals(data, cfg, str(csv)),
         "read_capture (parse, clean, derived columns)": lambda j: read_capture(data, cfg, str(csv), csv.stem),
         "  schema check (check_arrow)": lambda j: signals_table(df, "bench"),
         "  Parquet encode, in memory": lambda j: pq.write_table(table, pa.BufferOutputStream(), **PARQUET_OPTIONS),

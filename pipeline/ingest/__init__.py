@@ -10,8 +10,9 @@ Entry points for other stages:
       the pure core with each run's signals.parquet written in a worker thread beside the report.
 
 Modules: ``plain`` (fast path for clean captures; ``plain_kernel``, its compiled reader for
-large ones), ``parse`` (general line-by-line path, quarantine, re-framing), ``segments``
-(range rules, time order, resets), ``timing``, ``convert`` (units, zero_v "auto"),
+large ones, which writes the signals columns themselves when every row keeps the range rules),
+``parse`` (general line-by-line path, quarantine, re-framing), ``segments`` (range rules, time
+order, resets), ``timing``, ``convert`` (units, zero_v "auto"),
 ``mcap_bulk`` (vectorised MCAP writer; ``records_kernel``, its compiled record join),
 ``write`` (files, atomic), ``compile`` (the numba loops compiled at set-up), ``cli`` (``pdr ingest``).
 """

@@ -19,6 +19,8 @@ from pipeline.errors import IngestError
 from pipeline.ingest.timing import COUNTER_RANGE, UNIT_S
 
 MIN_REST_SAMPLES = 3          # fewest samples at rest that give a zero estimate worth reporting
+SIGNAL_COLUMNS = ("t_s", "t_raw", "line", "segment", "counts", "theta_rad", "adc", "current_v", "current_a",
+                  "dir", "mode")     # to_signals' order (those a sketch logs)
 
 
 @dataclass(frozen=True)
@@ -85,7 +87,7 @@ def estimate_zero(values: dict[str, np.ndarray], cfg: RigConfig, source: str) ->
     cs = cfg.current_sensor
     if cs.zero_v != "auto":
         return ZeroEstimate(float(cs.zero_v), 0.0, 0, "configured")
-    volts = values["adc"] * (cs.adc_vref / cs.adc_steps)
+    volts = values["adc"] * volts_per_step(cfg)
     rest, method = at_rest(values)
     if rest.sum() < MIN_REST_SAMPLES:
         raise IngestError(f"current_sensor.zero_v = \"auto\" needs at least {MIN_REST_SAMPLES} samples at rest "
@@ -95,23 +97,38 @@ def estimate_zero(values: dict[str, np.ndarray], cfg: RigConfig, source: str) ->
     return ZeroEstimate(float(np.median(v)), float(np.std(v)), int(rest.sum()), method)
 
 
+def rad_per_count(cfg: RigConfig) -> float:
+    return 2.0 * np.pi / cfg.encoder.counts_per_rev
+
+
+def volts_per_step(cfg: RigConfig) -> float:
+    return cfg.current_sensor.adc_vref / cfg.current_sensor.adc_steps
+
+
+def amps(volts: np.ndarray, zero_v: float, cfg: RigConfig) -> np.ndarray:
+    current = volts - zero_v
+    current /= cfg.current_sensor.sensitivity_v_per_a    # in place: the same rounding as (volts - zero) / sensitivity
+    return current
+
+
 def to_signals(values: dict[str, np.ndarray], line: np.ndarray, t_s: np.ndarray, segment: int,
                cfg: RigConfig, zero: ZeroEstimate | None) -> pd.DataFrame:
-    """The ``signals`` table of one segment; columns a sketch does not log stay absent."""
+    """The ``signals`` table of one segment; columns a sketch does not log stay absent.
+
+    ``plain_kernel.signal_rows`` computes the same columns row by row for large plain captures:
+    what changes here changes there (tests hold the two to the same bits).
+    """
     cols: dict[str, np.ndarray] = {
         "t_s": t_s,
         "t_raw": np.asarray(values["t_raw"], dtype=np.float64),
         "line": np.asarray(line, dtype=np.int64),
         "segment": np.full(len(line), segment, dtype=np.int32),
         "counts": np.asarray(values["counts"], dtype=np.int64),
-        "theta_rad": values["counts"] * (2.0 * np.pi / cfg.encoder.counts_per_rev),
+        "theta_rad": values["counts"] * rad_per_count(cfg),
     }
     if "adc" in values and zero is not None:
-        cs = cfg.current_sensor
-        volts = values["adc"] * (cs.adc_vref / cs.adc_steps)
-        current = volts - zero.zero_v
-        current /= cs.sensitivity_v_per_a        # in place: the same rounding as (volts - zero) / sensitivity
-        cols |= {"adc": values["adc"].astype(np.int32), "current_v": volts, "current_a": current}
+        volts = values["adc"] * volts_per_step(cfg)
+        cols |= {"adc": values["adc"].astype(np.int32), "current_v": volts, "current_a": amps(volts, zero.zero_v, cfg)}
     if "dir" in values:
         d = values["dir"].astype(np.int8)
         cols |= {"dir": d, "mode": d + np.int8(3) * (d < 0)}     # dir -1, 0, 1 -> mode 2, 0, 1

@@ -50,7 +50,8 @@ class Segment:
     width: int                              # fields per row
     data_lines: int                         # candidate data lines in the segment
     line: np.ndarray                        # 1-based raw line numbers of parsed rows
-    values: dict[str, np.ndarray]           # t_raw float64; counts, adc, dir int64
+    values: dict[str, np.ndarray]           # t_raw float64; counts, adc, dir int64 (adc int32, dir int8 from
+                                            # plain.read_plain_signals, whose kernel checks their ranges)
     quarantined: list[Quarantined] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
     raw_text: pa.Array | None = None        # the segment's data lines, for re-framing phase-shifted rows

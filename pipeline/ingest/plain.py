@@ -3,9 +3,10 @@
 Most captures written by a sketch straight to a file (or by ``pdr rig``) are
 plain: one header, rows of numbers, nothing else.  For those the whole parse
 is one multi-threaded Arrow CSV read, or for a large capture of integers one
-compiled pass (``plain_kernel``); anything unusual sends the capture to
-the general path (``pipeline.ingest.parse.parse_capture``), which reads line by
-line (still vectorised) and reports every line it cannot read.
+compiled pass (``plain_kernel``), which for a capture whose rows all keep the range
+rules writes the signals columns themselves (``read_plain_signals``); anything
+unusual sends the capture to the general path (``pipeline.ingest.parse.parse_capture``),
+which reads line by line (still vectorised) and reports every line it cannot read.
 """
 
 from __future__ import annotations
@@ -18,10 +19,12 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.csv as pcsv
 
-from pipeline.config import ColumnsConfig
+from pipeline.config import ColumnsConfig, RigConfig
 from pipeline.errors import IngestError
-from pipeline.ingest.parse import (TIME_RE, TRIM, ParsedFile, Segment, has_control_bytes, header_fields,
+from pipeline.ingest.convert import rad_per_count, volts_per_step
+from pipeline.ingest.parse import (LOGICAL, TIME_RE, TRIM, ParsedFile, Segment, has_control_bytes, header_fields,
                                    layout_from_header, positional_layout)
+from pipeline.ingest.timing import COUNTER_RANGE, UNIT_S
 
 _PLAIN = b"0123456789,-.\r\n"
 # From ~230k rows on, captures are read by the compiled reader (``plain_kernel``, ~4x less CPU than
@@ -156,3 +159,25 @@ def parse_plain(data: bytes, columns: ColumnsConfig, source: str) -> ParsedFile 
         return None
     n = len(values["t_raw"])
     return lay.parsed(values, np.arange(lay.first_line, lay.first_line + n, dtype=np.int64))
+
+
+def read_plain_signals(data: bytes, cfg: RigConfig, source: str) -> tuple[ParsedFile, dict[str, np.ndarray]] | None:
+    """A large plain capture whose rows all keep the range rules, read straight into the signals columns
+    (``plain_kernel.read_signals``: ``convert.to_signals``' columns and bits, but segment, and current_a
+    when zero_v is "auto"), with its parsed file (one segment, nothing quarantined; adc int32, dir int8);
+    None for anything else, which ``parse_plain`` or the general path reads.
+
+    What the kernel takes, the general path would read as one segment with no row quarantined, no
+    time going back and no reset (``segments``): nothing is left to clean but the zero estimate.
+    """
+    lay = plain_layout(data, cfg.columns, source)
+    if lay is None or len(data) - lay.body_start < KERNEL_MIN_BYTES:
+        return None
+    from pipeline.ingest.plain_kernel import read_signals
+    cs, span = cfg.current_sensor, COUNTER_RANGE[cfg.columns.time_unit]
+    configured = cs.zero_v != "auto"
+    at = np.array([lay.width, *(lay.layout.get(k, -1) for k in LOGICAL), cs.adc_steps], dtype=np.int64)
+    scale = [0.0, UNIT_S[cfg.columns.time_unit], span or np.inf, rad_per_count(cfg), volts_per_step(cfg),
+             float(cs.zero_v) if configured else np.nan, cs.sensitivity_v_per_a]
+    cols = read_signals(memoryview(data)[lay.body_start:], at, scale, lay.first_line, configured)
+    return None if cols is None else (lay.parsed({k: cols[k] for k in lay.layout}, cols["line"]), cols)

@@ -10,13 +10,15 @@ import hashlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
 from pipeline.config import RigConfig, config_for_recording
 from pipeline.errors import IngestError
-from pipeline.ingest.convert import ZeroEstimate, estimate_zero, saturation, seconds_from_start, to_signals
+from pipeline.ingest.convert import (SIGNAL_COLUMNS, ZeroEstimate, amps, estimate_zero, saturation, seconds_from_start,
+                                     to_signals)
 from pipeline.ingest.parse import ParsedFile, Quarantined, parse_capture
-from pipeline.ingest.plain import parse_plain
+from pipeline.ingest.plain import parse_plain, read_plain_signals
 from pipeline.ingest.segments import clean_segment, split_restarts
 from pipeline.ingest.timing import timing_stats
 from pipeline.runs import RunPaths, run_paths
@@ -85,9 +87,26 @@ class Capture:
     runs: list[RunData]
 
 
+def _plain_capture(data: bytes, cfg: RigConfig, source: str, stem: str, parsed: ParsedFile,
+                   cols: dict[str, np.ndarray]) -> Capture:
+    """``read_capture`` of a capture ``read_plain_signals`` took: one segment, all of it kept, its columns
+    made; what is left is the zero estimate (and with it current_a, when zero_v is "auto")."""
+    seg = parsed.segments[0]
+    zeros, _ = _current_zeros(parsed, {}, cfg, source)      # raises, as below, when "auto" finds no rest
+    if "adc" in seg.values and "current_a" not in cols:
+        cols["current_a"] = amps(cols["current_v"], zeros[seg.index].zero_v, cfg)
+    cols["segment"] = np.zeros(len(seg.line), dtype=np.int32)
+    signals = pd.DataFrame({k: cols[k] for k in SIGNAL_COLUMNS if k in cols}, copy=False)
+    return Capture(data, cfg, source, parsed, [(seg.values["t_raw"], 0)], [], {}, zeros, {seg.index: stem},
+                   [RunData(stem, signals, {})])
+
+
 def read_capture(data: bytes, cfg: RigConfig, source: str, stem: str) -> Capture:
     """Bytes of one capture -> the signals table of each kept segment; every refusal is raised here,
     so once this returns the tables can be written while the report is put together."""
+    plain = read_plain_signals(data, cfg, source)
+    if plain is not None and len(plain[0].segments[0].line) >= MIN_SEGMENT_ROWS:
+        return _plain_capture(data, cfg, source, stem, *plain)
     parsed = parse_plain(data, cfg.columns, source) or parse_capture(data, cfg.columns, source)
     parsed.segments = [part for seg in parsed.segments for part in split_restarts(seg, cfg.columns.time_unit)]
     for k, seg in enumerate(parsed.segments):

@@ -8,6 +8,8 @@ piece, two halves on two threads) are held to this.
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -16,7 +18,7 @@ from hypothesis import strategies as st
 from benchmarks.bench_ingest import make_capture
 from pipeline.config import default_config
 from pipeline.ingest import plain
-from pipeline.ingest.parse import format_line, parse_capture
+from pipeline.ingest.parse import LOGICAL, format_line, parse_capture
 from pipeline.ingest.plain_kernel import read_int_rows
 from pipeline.ingest.stage import read_capture
 
@@ -137,3 +139,118 @@ def test_small_captures_do_not_import_numba(tmp_path):
                          cwd=Path(__file__).resolve().parents[2])
     assert res.stdout.strip().splitlines()[-1] == "False"
     assert (tmp_path / "out" / "rec" / "rec.mcap").is_file()
+
+
+# ------------------------------------------------------------------ signal_rows: the signals columns themselves
+
+def _rig(counts_per_rev, vref, steps, sensitivity, zero_v, unit, columns):
+    import dataclasses
+    cs = dataclasses.replace(CFG.current_sensor, adc_vref=vref, adc_steps=steps, sensitivity_v_per_a=sensitivity,
+                             zero_v=zero_v)
+    return dataclasses.replace(CFG, encoder=dataclasses.replace(CFG.encoder, counts_per_rev=counts_per_rev),
+                               current_sensor=cs, columns=dataclasses.replace(CFG.columns, time_unit=unit, **columns))
+
+
+rigs = st.builds(_rig, st.floats(0.5, 1e5), st.floats(0.1, 12.0), st.sampled_from([256, 1024, 4096]),
+                 st.floats(0.01, 1.0), st.one_of(st.floats(0.0, 5.0), st.just("auto")),
+                 st.sampled_from(["ms", "us", "s"]),
+                 st.sampled_from([{}, {"dir": ""}, {"adc": ""}, {"adc": "", "dir": ""}]))
+# rows in range, then a few values changed to what the range rules quarantine (or just keep), and times
+# that may go back or pass a counter's wrap
+edits = st.lists(st.tuples(st.integers(0, 39), st.one_of(
+    st.tuples(st.just("adc"), st.sampled_from([-1, 0, 255, 256, 1023, 1024, 4095, 4096])),
+    st.tuples(st.just("dir"), st.sampled_from([-2, 2])),
+    st.tuples(st.just("counts"), st.sampled_from([-(10**18) + 1, 10**18 - 1, 2**53 + 1, -(2**53) - 1])),
+    st.tuples(st.just("t_raw"), st.sampled_from([0.0, 2.0**32 - 1, 2.0**32, 10.0**15 - 1])))), max_size=2)
+
+
+def _capture(rows, cfg, header, eol, sort) -> bytes:
+    """The rows as a capture with the columns ``cfg`` logs, in INTERFACE.md order."""
+    c = cfg.columns
+    logged = [(k, n) for k, n in zip(LOGICAL, (c.t_ms, c.counts, c.adc, c.dir)) if n]
+    layout = {k: j for j, (k, _) in enumerate(logged)}
+    rows = sorted(rows, key=lambda r: r["t_raw"]) if sort else rows
+    return (((",".join(n for _, n in logged) + eol) if header else "")
+            + "".join(format_line(r, layout, len(logged)) + eol for r in rows)).encode()
+
+
+def _outcome(fn):
+    try:
+        cap = fn()
+    except Exception as err:            # noqa: BLE001  (a refusal: both ways must refuse alike)
+        return type(err).__name__ + ": " + str(err)
+    from pipeline.ingest.stage import capture_report
+    return cap.runs, json.dumps(capture_report(cap), sort_keys=True)
+
+
+def _same_bits(a, b) -> None:
+    assert list(a.columns) == list(b.columns)
+    for c in a.columns:
+        x, y = a[c].to_numpy(), b[c].to_numpy()
+        assert x.dtype == y.dtype and x.tobytes() == y.tobytes(), c
+
+
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.lists(row, min_size=1, max_size=40), edits, rigs, st.booleans(), st.sampled_from(["\n", "\r\n"]),
+       st.booleans(), st.sampled_from([0, 1 << 30]))
+def test_signal_rows_give_the_general_paths_tables_and_report_or_decline(rows, changes, cfg, header, eol, sort,
+                                                                         split_min_bytes):
+    from pipeline.ingest import plain_kernel, stage
+    rows = [r | {"adc": r["adc"] % cfg.current_sensor.adc_steps} for r in rows]
+    for i, (key, value) in changes:
+        rows[i % len(rows)] = rows[i % len(rows)] | {key: value}
+    data = _capture(rows, cfg, header, eol, sort)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(plain, "KERNEL_MIN_BYTES", 0)
+        mp.setattr(plain_kernel, "SPLIT_MIN_BYTES", split_min_bytes)
+        taken = plain.read_plain_signals(data, cfg, "k.csv") is not None
+        fast = _outcome(lambda: read_capture(data, cfg, "k.csv", "k"))
+        mp.setattr(stage, "read_plain_signals", lambda *a: None)
+        general = _outcome(lambda: read_capture(data, cfg, "k.csv", "k"))
+    if isinstance(general, str) or isinstance(fast, str):
+        assert fast == general
+        return
+    assert fast[1] == general[1]
+    assert [r.name for r in fast[0]] == [r.name for r in general[0]]
+    for a, b in zip(fast[0], general[0]):
+        _same_bits(a.signals, b.signals)
+    if taken:                           # what the kernel takes is one clean segment
+        report = json.loads(general[1])
+        assert report["rows"]["quarantined"] == 0 and len(report["segments"]) == 1
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.lists(row, min_size=2, max_size=40), rigs, st.booleans(), st.sampled_from(["\n", "\r\n"]),
+       st.sampled_from([0, 1 << 30]))
+def test_signal_rows_take_every_capture_in_range_and_time_order(rows, cfg, header, eol, split_min_bytes):
+    from pipeline.ingest import plain_kernel
+    steps = cfg.current_sensor.adc_steps
+    rows = [r | {"adc": r["adc"] % steps} for r in rows]
+    data = _capture(rows, cfg, header, eol, sort=True)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(plain_kernel, "SPLIT_MIN_BYTES", split_min_bytes)
+        mp.setattr(plain, "KERNEL_MIN_BYTES", 0)
+        assert plain.read_plain_signals(data, cfg, "k.csv") is not None
+
+
+def test_large_capture_gives_the_same_signals_through_signal_rows(monkeypatch):
+    from pipeline.ingest import stage
+    data = make_capture(300_000)
+    fast = read_capture(data, CFG, "big.csv", "big")
+    assert plain.read_plain_signals(data, CFG, "big.csv") is not None
+    monkeypatch.setattr(stage, "read_plain_signals", lambda *a: None)
+    _same_bits(fast.runs[0].signals, read_capture(data, CFG, "big.csv", "big").runs[0].signals)
+
+
+@pytest.mark.parametrize("last, taken", [
+    ("4294967295,5,1023,1", True), ("4294967296,5,1023,1", False),     # millis: the counter's range
+    ("60,5,1024,1", False), ("60,5,0,-1", True), ("60,5,-1,0", False),  # adc in 0..1023
+    ("60,5,9,2", False), ("60,5,9,-2", False),                          # dir in -1..1
+    ("60,999999999999999999,9,0", True), ("60,-999999999999999999,9,0", True),
+    ("60,1000000000000000000,9,0", False), ("40,5,9,0", False),         # 19 digits; time going back
+])
+def test_signal_rows_decline_at_the_range_rules_edges(last, taken):
+    data = f"t_ms,counts,adc,dir\n50,0,511,0\n{last}\n".encode()
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(plain, "KERNEL_MIN_BYTES", 0)
+        assert (plain.read_plain_signals(data, CFG, "k.csv") is not None) == taken
