@@ -29,7 +29,7 @@ from pipeline.ingest.timing import COUNTER_RANGE, UNIT_S
 _PLAIN = b"0123456789,-.\r\n"
 # From ~230k rows on, captures are read by the compiled reader (``plain_kernel``, ~4x less CPU than
 # Arrow's read); smaller ones by Arrow, where the saving is under ~20 ms and would not cover the
-# numba import and first call (~1 s once per process).
+# numba import and the load of its cached kernels (~0.4-0.5 s once per process).
 KERNEL_MIN_BYTES = 4 << 20
 
 
