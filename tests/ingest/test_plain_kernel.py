@@ -2,8 +2,11 @@
 
 For any capture: either ``read_int_rows`` declines, or the general path (``parse_capture``)
 reads the same file as one clean segment with the same values and line numbers; and a capture
-of valid integer rows in time order is never declined.  Both ways of cutting the body (one
-piece, two halves on two threads) are held to this.
+of valid integer rows in time order is never declined.  Likewise ``read_plain_signals``
+(``signal_rows``): either it declines, or ``read_capture`` through it gives the general path's
+signals tables bit for bit and the same report (or the same refusal), over random rigs; and a
+capture whose rows all keep the range rules is never declined.  Both ways of cutting the body
+(one piece, two halves on two threads) are held to this.
 """
 
 from __future__ import annotations
