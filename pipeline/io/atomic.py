@@ -43,6 +43,11 @@ def deferred_sync() -> Iterator[None]:
             os.sync()
 
 
+def syncs_deferred() -> bool:
+    """Inside ``deferred_sync``: a writer that syncs part of a file early (``write_signals``) skips it too."""
+    return _deferred_depth > 0
+
+
 def _sync(fd: int) -> None:
     if _deferred_depth == 0:
         os.fsync(fd)

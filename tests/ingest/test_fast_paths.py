@@ -100,6 +100,22 @@ def test_write_signals_refuses_a_bad_table_and_leaves_nothing(tmp_path):
     assert not list(tmp_path.rglob("*.parquet")) and not list(tmp_path.rglob("*.tmp"))
 
 
+def test_write_signals_syncs_each_row_group_except_inside_deferred_sync(tmp_path, monkeypatch):
+    import os
+
+    from pipeline.io import atomic
+    synced = []
+    real = os.fdatasync
+    monkeypatch.setattr(os, "fdatasync", lambda fd: (synced.append(fd), real(fd)))
+    write_signals(run_paths(tmp_path / "a", "r"), _frame(), row_group_rows=4)
+    assert len(synced) == 2                                  # one per row group, started as each is written
+    synced.clear()
+    with atomic.deferred_sync():                             # pdr run: one os.sync at the end instead
+        write_signals(run_paths(tmp_path / "b", "r"), _frame(), row_group_rows=4)
+    assert synced == []
+    assert (tmp_path / "a" / "r" / "signals.parquet").read_bytes() == (tmp_path / "b" / "r" / "signals.parquet").read_bytes()
+
+
 @pytest.mark.parametrize("capture", [CLEAN, CLEAN + CLEAN])        # one run; a reset: two runs
 def test_threaded_parquet_write_gives_the_pure_cores_tables_and_report(tmp_path, capture):
     cfg = default_config()
