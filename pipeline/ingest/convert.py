@@ -19,8 +19,6 @@ from pipeline.errors import IngestError
 from pipeline.ingest.timing import COUNTER_RANGE, UNIT_S
 
 MIN_REST_SAMPLES = 3          # fewest samples at rest that give a zero estimate worth reporting
-SIGNAL_COLUMNS = ("t_s", "t_raw", "line", "segment", "counts", "theta_rad", "adc", "current_v", "current_a",
-                  "dir", "mode")     # to_signals' order (those a sketch logs)
 
 
 @dataclass(frozen=True)

@@ -170,6 +170,8 @@ def read_plain_signals(data: bytes, cfg: RigConfig, source: str) -> tuple[Parsed
     What the kernel takes, the general path would read as one segment with no row quarantined, no
     time going back and no reset (``segments``): nothing is left to clean but the zero estimate.
     """
+    if len(data) < KERNEL_MIN_BYTES:            # before the layout: small captures have theirs read once, by parse_plain
+        return None
     lay = plain_layout(data, cfg.columns, source)
     if lay is None or len(data) - lay.body_start < KERNEL_MIN_BYTES:
         return None

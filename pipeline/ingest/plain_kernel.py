@@ -167,8 +167,8 @@ def _by_halves(rows: memoryview, split_min_bytes: int | None, allocate, read, ti
     with ThreadPoolExecutor(max_workers=2) as pool:
         starts = np.cumsum([0, *pool.map(count_lines, parts)])
         out = allocate(int(starts[-1]))
-        read = list(pool.map(lambda k: read(parts[k], out, starts[k], starts[k + 1]), range(len(parts))))
-    if read != list(np.diff(starts)) or not starts[-1]:
+        rows_read = list(pool.map(lambda k: read(parts[k], out, starts[k], starts[k + 1]), range(len(parts))))
+    if rows_read != list(np.diff(starts)) or not starts[-1]:
         return None
     t, meet = times(out), starts[1:-1]
     return None if (t[meet - 1] > t[meet]).any() else (out, starts)

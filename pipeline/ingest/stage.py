@@ -15,13 +15,13 @@ import pandas as pd
 
 from pipeline.config import RigConfig, config_for_recording
 from pipeline.errors import IngestError
-from pipeline.ingest.convert import (SIGNAL_COLUMNS, ZeroEstimate, amps, estimate_zero, saturation, seconds_from_start,
-                                     to_signals)
+from pipeline.ingest.convert import ZeroEstimate, amps, estimate_zero, saturation, seconds_from_start, to_signals
 from pipeline.ingest.parse import ParsedFile, Quarantined, parse_capture
 from pipeline.ingest.plain import parse_plain, read_plain_signals
 from pipeline.ingest.segments import clean_segment, split_restarts
 from pipeline.ingest.timing import timing_stats
 from pipeline.runs import RunPaths, run_paths
+from pipeline.schemas import load_schema
 
 MIN_SEGMENT_ROWS = 2          # a segment with fewer kept rows has no timing and is flagged, not a run
 
@@ -96,7 +96,8 @@ def _plain_capture(data: bytes, cfg: RigConfig, source: str, stem: str, parsed: 
     if "adc" in seg.values and "current_a" not in cols:
         cols["current_a"] = amps(cols["current_v"], zeros[seg.index].zero_v, cfg)
     cols["segment"] = np.zeros(len(seg.line), dtype=np.int32)
-    signals = pd.DataFrame({k: cols[k] for k in SIGNAL_COLUMNS if k in cols}, copy=False)
+    order = [c.name for c in load_schema("signals").columns]         # to_signals' order too
+    signals = pd.DataFrame({k: cols[k] for k in order if k in cols}, copy=False)
     return Capture(data, cfg, source, parsed, [(seg.values["t_raw"], 0)], [], {}, zeros, {seg.index: stem},
                    [RunData(stem, signals, {})])
 
