@@ -173,3 +173,24 @@ def test_short_recordings_a_dead_drive_and_repeated_instants_are_the_single_call
         alternating = np.where(np.arange(len(t)) % 3 == 0, 1, -1).astype(np.int8)
         for kw in ({}, {"dir_log": alternating, "closed_loop": False}, {"dir_log": np.zeros(len(t), np.int8)}):
             _same_bits(specs, t, **kw)
+
+
+def test_a_command_decided_while_another_is_on_its_way_is_the_single_call_to_the_last_bit():
+    # the controller starts at sample 1 with the pinion past the guard, so it reverses at once while the
+    # first command is still travelling: two commands on their way (the ring), in and past the start
+    specs = [replace(s, Td=td) for s, td in zip(_linear_sets(n=12, seed=14), (0.13, 0.3, 0.02, 0.0) * 3)]
+    log = np.zeros(len(T), np.int8)
+    log[1] = 1
+    x0 = (0.0, 0.0, 2.0 * BASE.params.R * BASE.guard_rad)
+    batch = _same_bits(specs, T, dir_log=log, x0=x0)
+    assert all(batch.dir[i][2] == -1 for i in range(len(specs)))        # reversed one sample after the start
+
+
+def test_blocks_of_undelayed_delayed_and_mixed_sets_are_the_single_call_to_the_last_bit():
+    # the batch runs 64 sets at a time: a block with no loop delay, one where every set has one, and a
+    # last block of three sets (the rest of it padding)
+    sets = _linear_sets(n=131, seed=15)
+    specs = ([replace(s, Td=0.0) for s in sets[:64]] + [replace(s, Td=0.03 + 0.001 * i) for i, s in
+                                                         enumerate(sets[64:128])] + sets[128:])
+    _same_bits(specs, T)
+
