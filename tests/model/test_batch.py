@@ -194,3 +194,23 @@ def test_blocks_of_undelayed_delayed_and_mixed_sets_are_the_single_call_to_the_l
                                                          enumerate(sets[64:128])] + sets[128:])
     _same_bits(specs, T)
 
+
+def test_a_result_kept_is_not_overwritten_by_the_next_batch():
+    # the output memory of a batch is handed out again only once nothing refers to its result
+    first_specs, second_specs = _linear_sets(n=10, seed=16), _linear_sets(n=10, seed=17)
+    first = simulate_batch(first_specs, T)
+    omega = first.omega.copy()
+    second = simulate_batch(second_specs, T)
+    assert not np.shares_memory(first.omega, second.omega)
+    np.testing.assert_array_equal(first.omega, omega)
+    for i, s in enumerate(first_specs):
+        assert np.array_equal(first.delta[i], simulate(s, T).delta)
+
+
+def test_a_dropped_result_leaves_its_memory_to_the_next_batch():
+    specs = _linear_sets(n=10, seed=18)
+    address = simulate_batch(specs, T).omega.__array_interface__["data"][0]
+    again = simulate_batch(specs, T)                  # the first result was dropped at once
+    assert again.omega.__array_interface__["data"][0] == address
+    for i, s in enumerate(specs):
+        assert np.array_equal(again.omega[i], simulate(s, T).omega)
