@@ -336,34 +336,38 @@ def _advance(typingctx, P, p, W, d_old, d_new, Y, y, stride, dirs, di):
 
 
 @intrinsic
-def _advance_queued(typingctx, P, p, W, d_old, d_new, own, BK, BG, tk, limit, h, t_now, queued, ringed, Y, y,
-                    stride, dirs, di, flags, busy):
+def _advance_queued(typingctx, P, p, W, d_old, d_new, own, BK, BG, used, tk, limit, h, t_now, queued, ringed, Y, y,
+                    stride, dirs, di, odd, busy):
     """A block with delayed sets, one sample on in closed loop past the controller's start, in one pass
     over its vectors: ``_step_motor``, ``_land``, ``_flip``, ``_send`` and ``_emit`` (see them), so each
-    vector's outputs leave right after it is computed.
+    vector's outputs leave right after it is computed.  ``used``: the split cache slots any set of the
+    block has filled.
 
     A vector where a set's split length is not in its cache is stored
-    before the guard and flagged (flags: 1 for that set, 2 for the others of
-    its vector): the caller lands that set and finishes the vector one set
+    before the guard and flagged in ``odd`` (1 for that set, 2 for the others
+    of its vector): the caller lands that set and finishes the vector one set
     at a time.  Sets whose new command finds one on its way are flagged in
-    ``busy`` for the ring.  Returns flagged vectors + 2^32 x busy sets.
+    ``busy`` for the ring.  Only flags are written: the caller clears them.
+    Returns flagged vectors + 2^32 x busy sets.
     """
-    sig = types.int64(P, types.intp, W, types.intp, types.intp, own, BK, BG, types.float64, types.float64,
-                      types.float64, types.float64, queued, ringed, Y, types.intp, types.intp, dirs, types.intp,
-                      flags, busy)
+    sig = types.int64(P, types.intp, W, types.intp, types.intp, own, BK, BG, types.intp, types.float64,
+                      types.float64, types.float64, types.float64, queued, ringed, Y, types.intp, types.intp, dirs,
+                      types.intp, odd, busy)
 
     def codegen(context, builder, signature, args):
-        P, W, own, BK, BG, queued, ringed, Yr, out, flags, busy = (
-            _Rows(context, builder, signature.args[i], args[i]) for i in (0, 2, 5, 6, 7, 12, 13, 14, 17, 19, 20))
-        p, d_old, d_new, tk, limit, h, t_now, y, stride, di = (args[i] for i in (1, 3, 4, 8, 9, 10, 11, 15, 16, 18))
+        P, W, own, BK, BG, queued, ringed, Yr, out, odd, busy = (
+            _Rows(context, builder, signature.args[i], args[i]) for i in (0, 2, 5, 6, 7, 13, 14, 15, 18, 20, 21))
+        p, d_old, d_new, used, tk, limit, h, t_now, y, stride, di = (
+            args[i] for i in (1, 3, 4, 8, 9, 10, 11, 12, 16, 17, 19))
         nontemporal = builder.module.add_metadata([ir.Constant(ir.IntType(32), 1)])
         rint = cgutils.get_or_insert_function(builder.module, ir.FunctionType(_V8, [_V8]), "llvm.rint.v8f64")
         i1v = ir.VectorType(ir.IntType(1), VEC)
         no = ir.Constant(_B8, [0] * VEC)
+        none = ir.Constant(ir.IntType(VEC), 0)
         deferred = cgutils.alloca_once_value(builder, ir.Constant(_I64, 0))
         waiting = cgutils.alloca_once_value(builder, ir.Constant(_I64, 0))
-        slots = [cgutils.alloca_once(builder, _V8) for _ in range(5)]     # state (3), U, NEXT after landing
-        missing = cgutils.alloca_once(builder, i1v)
+        slots = [cgutils.alloca_once(builder, _V8) for _ in range(7)]     # state (3), NEXT, Gamma (3)
+        missing, found = cgutils.alloca_once(builder, i1v), cgutils.alloca_once(builder, i1v)
         for v in range(LANES // VEC):
             at = ir.Constant(_I64, VEC * v)
             pe = [P.load(_at(builder, p, LANES * e + VEC * v)) for e in range(12)]
@@ -375,59 +379,60 @@ def _advance_queued(typingctx, P, p, W, d_old, d_new, own, BK, BG, tk, limit, h,
                 acc = builder.fadd(builder.fmul(pe[3 * r], x[0]), builder.fmul(pe[3 * r + 1], x[1]))
                 acc = builder.fadd(acc, builder.fmul(pe[3 * r + 2], x[2]))
                 builder.store(builder.fadd(acc, builder.fmul(pe[9 + r], u)), slots[r])
-            builder.store(U, slots[3])
-            builder.store(nxt, slots[4])
+            builder.store(nxt, slots[3])
             builder.store(ir.Constant(i1v, [0] * VEC), missing)
             due = builder.fcmp_ordered("<", nxt, _splat(builder, limit))
-            with builder.if_then(builder.icmp_unsigned("!=", builder.bitcast(due, ir.IntType(VEC)),
-                                                       ir.Constant(ir.IntType(VEC), 0)), likely=False):
+            with builder.if_then(builder.icmp_unsigned("!=", builder.bitcast(due, ir.IntType(VEC)), none),
+                                 likely=False):
                 NV = W.row(ROW_NV, v)
                 du = builder.fsub(NV, U)
                 a = builder.fsub(nxt, _splat(builder, tk))
                 key = builder.fdiv(builder.call(rint, [builder.fmul(builder.fsub(_splat(builder, h), a), _const(1e12))]),
                                    _const(1e12))
-                g = [_const(0.0)] * 3
-                found = ir.Constant(i1v, [0] * VEC)
-                for slot in range(MAX_SPLITS):
-                    hit = builder.fcmp_ordered("==", key, BK.row(slot, v))
-                    found = builder.or_(found, hit)
-                    g = [builder.select(hit, BG.row(3 * slot + r, v), g[r]) for r in range(3)]
+                for r in range(3):
+                    builder.store(_const(0.0), slots[4 + r])
+                builder.store(ir.Constant(i1v, [0] * VEC), found)
+                with cgutils.for_range(builder, used) as loop:     # the slots in use only
+                    hit = builder.fcmp_ordered("==", key, BK.row(loop.index, v))
+                    builder.store(builder.or_(builder.load(found), hit), found)
+                    row = builder.mul(loop.index, ir.Constant(_I64, 3))
+                    for r in range(3):
+                        g = BG.row(builder.add(row, ir.Constant(_I64, r)), v)
+                        builder.store(builder.select(hit, g, builder.load(slots[4 + r])), slots[4 + r])
                 at_start = builder.fcmp_ordered("<=", a, _const(TIME_EPS))
-                g = [builder.select(at_start, P.load(_at(builder, p, (9 + r) * LANES + VEC * v)), g[r])
-                     for r in range(3)]
+                g = [builder.select(at_start, P.load(_at(builder, p, (9 + r) * LANES + VEC * v)),
+                                    builder.load(slots[4 + r])) for r in range(3)]
                 moved = builder.fcmp_unordered("!=", du, _const(0.0))
-                miss = builder.and_(builder.and_(due, moved), builder.not_(builder.or_(at_start, found)))
+                miss = builder.and_(builder.and_(due, moved), builder.not_(builder.or_(at_start, builder.load(found))))
                 ok = builder.and_(due, builder.not_(miss))
                 apply = builder.and_(ok, moved)
                 for r in range(3):
                     e = builder.fadd(_const(0.0), builder.fmul(g[r], du))
                     xr = builder.load(slots[r])
                     builder.store(builder.select(apply, builder.fadd(xr, e), xr), slots[r])
-                builder.store(builder.select(ok, NV, U), slots[3])
-                builder.store(builder.select(ok, _const(np.inf), nxt), slots[4])
+                W.set_row(ROW_U, v, builder.select(ok, NV, U))
+                landed = builder.select(ok, _const(np.inf), nxt)
+                W.set_row(ROW_NEXT, v, landed)
+                builder.store(landed, slots[3])
                 builder.store(miss, missing)
             new = [builder.load(slots[r]) for r in range(3)]
             for r in range(3):
                 W.set_row(r, v, new[r])
-            W.set_row(ROW_U, v, builder.load(slots[3]))
-            nxt = builder.load(slots[4])
-            W.set_row(ROW_NEXT, v, nxt)
+            nxt = builder.load(slots[3])
             miss = builder.load(missing)
-            flags.store(at, no, _B8, align=1)
-            busy.store(at, no, _B8, align=1)
-            any_miss = builder.icmp_unsigned("!=", builder.bitcast(miss, ir.IntType(VEC)), ir.Constant(ir.IntType(VEC), 0))
-            with builder.if_else(any_miss, likely=False) as (odd, usual):
-                with odd:                               # the caller finishes this vector
-                    flags.store(at, builder.select(miss, ir.Constant(_B8, [1] * VEC), ir.Constant(_B8, [2] * VEC)),
-                                _B8, align=1)
+            with builder.if_else(builder.icmp_unsigned("!=", builder.bitcast(miss, ir.IntType(VEC)), none),
+                                 likely=False) as (unusual, usual):
+                with unusual:                           # the caller finishes this vector
+                    odd.store(at, builder.select(miss, ir.Constant(_B8, [1] * VEC), ir.Constant(_B8, [2] * VEC)),
+                              _B8, align=1)
                     builder.store(builder.add(builder.load(deferred), ir.Constant(_I64, 1)), deferred)
                 with usual:
                     flag = builder.uitofp(builder.fcmp_ordered(">=", builder.fmul(dq, new[2]), W.row(ROW_THR, v)), _V8)
                     dn = builder.fsub(dq, builder.fmul(builder.fmul(_const(2.0), dq), flag))
                     W.set_row(d_new, v, dn)
                     changed = builder.and_(builder.fcmp_unordered("!=", dq, dn), _mask_of(builder, queued, v))
-                    with builder.if_then(builder.icmp_unsigned("!=", builder.bitcast(changed, ir.IntType(VEC)),
-                                                               ir.Constant(ir.IntType(VEC), 0)), likely=False):
+                    with builder.if_then(builder.icmp_unsigned("!=", builder.bitcast(changed, ir.IntType(VEC)), none),
+                                         likely=False):
                         free = builder.and_(builder.fcmp_ordered("==", nxt, _const(np.inf)),
                                             builder.not_(_mask_of(builder, ringed, v)))
                         simple = builder.and_(changed, free)
@@ -707,11 +712,15 @@ def _queued_run(t, idx, Pb, A, B, R, guard, Td, log, closed_loop, start, first, 
     for l in range(LANES):
         W[ROW_D0, l] = np.nan                           # at sample 0 every delayed set sends its command
     ring_next = np.inf                                  # earliest arrival in the rings
+    used = 0                                            # split cache slots any set has filled
+    for l in range(LANES):
+        used = max(used, bn[l])
+    odd = np.zeros(LANES, dtype=np.uint8)
     k = 0
     while k < n:
         if closed_loop and k > start:                   # the usual samples: one pass each (``_queued_free_run``)
-            k, done = _queued_free_run(k, n, t, idx, Pb, W, own, BK, BG, queued, ringed, Y, dirs, lo, flags, busy,
-                                       ring_next)
+            k, done = _queued_free_run(k, n, t, idx, Pb, W, own, BK, BG, used, queued, ringed, Y, dirs, lo, odd,
+                                       busy, ring_next)
             if k == n:
                 break
         else:
@@ -722,14 +731,15 @@ def _queued_run(t, idx, Pb, A, B, R, guard, Td, log, closed_loop, start, first, 
             tk, t_next = t[k - 1], t[k]
             if done & 0xFFFFFFFF:                       # vectors with a split length to compute
                 for l in range(LANES):
-                    if not flags[l]:
+                    if not odd[l]:
                         continue
-                    if flags[l] == 1:                   # its command lands (as below)
+                    if odd[l] == 1:                     # its command lands (as below)
                         du = W[ROW_NV, l] - W[ROW_U, l]
                         W[ROW_U, l] = W[ROW_NV, l]
                         a = W[ROW_NEXT, l] - tk
                         W[ROW_NEXT, l] = np.inf
                         s = _split_slot(l, lo + l, step_key((t_next - tk) - a), A, B, BK, BG, bn, G)
+                        used = max(used, s + 1)
                         e0 = 0.0 + BG[(3 * s) * LANES + l] * du
                         e1 = 0.0 + BG[(3 * s + 1) * LANES + l] * du
                         e2 = 0.0 + BG[(3 * s + 2) * LANES + l] * du
@@ -747,11 +757,13 @@ def _queued_run(t, idx, Pb, A, B, R, guard, Td, log, closed_loop, start, first, 
                             done += 1 << 32
                     Y[k, 0, lo + l], Y[k, 1, lo + l], Y[k, 2, lo + l] = W[ROW_I, l], W[ROW_W, l], W[ROW_DELTA, l]
                     dirs[k, lo + l] = np.int8(dn)
+                    odd[l] = 0
             if done >> 32:
                 for l in range(LANES):
                     if busy[l]:
                         _to_ring(l, t_next + Td[lo + l], W[d_new, l] * W[ROW_V, l], W, arrive, volts, head, count,
                                  ringed)
+                        busy[l] = 0
                 ring_next = _ring_next(arrive, head, ringed)
             k += 1
             continue
@@ -785,6 +797,7 @@ def _queued_run(t, idx, Pb, A, B, R, guard, Td, log, closed_loop, start, first, 
                                     e2 += Pb[(12 * j + 11) * LANES + l] * du
                                 else:
                                     s = _split_slot(l, q, step_key(h - a), A, B, BK, BG, bn, G)
+                                    used = max(used, s + 1)
                                     e0 += BG[(3 * s) * LANES + l] * du
                                     e1 += BG[(3 * s + 1) * LANES + l] * du
                                     e2 += BG[(3 * s + 2) * LANES + l] * du
@@ -797,6 +810,7 @@ def _queued_run(t, idx, Pb, A, B, R, guard, Td, log, closed_loop, start, first, 
                         W[ROW_NEXT, l] = np.inf
                         moved = True
                         s = _split_slot(l, q, step_key(h - a), A, B, BK, BG, bn, G)
+                        used = max(used, s + 1)
                         e0 += BG[(3 * s) * LANES + l] * du
                         e1 += BG[(3 * s + 1) * LANES + l] * du
                         e2 += BG[(3 * s + 2) * LANES + l] * du
@@ -821,7 +835,7 @@ def _queued_run(t, idx, Pb, A, B, R, guard, Td, log, closed_loop, start, first, 
 
 
 @njit(cache=True)
-def _queued_free_run(k, n, t, idx, Pb, W, own, BK, BG, queued, ringed, Y, dirs, lo, flags, busy, ring_next):
+def _queued_free_run(k, n, t, idx, Pb, W, own, BK, BG, used, queued, ringed, Y, dirs, lo, odd, busy, ring_next):
     """Samples k.. of a block with delayed sets, in closed loop past the controller's start, each in one pass
     (``_advance_queued``) until one needs work set by set: returns that sample and its flags (0: a ring's
     command lands there, not stepped yet), or n.  Kept apart from ``_queued_run`` so that its rare paths do
@@ -832,8 +846,8 @@ def _queued_free_run(k, n, t, idx, Pb, W, own, BK, BG, queued, ringed, Y, dirs, 
         if ring_next < t_next - TIME_EPS:
             return k, 0
         done = _advance_queued(Pb, 12 * LANES * idx[k - 1], W, ROW_D0 + (k & 1), ROW_D1 - (k & 1), own, BK, BG,
-                               tk, t_next - TIME_EPS, t_next - tk, t_next, queued, ringed, Y, 3 * mp * k + lo, mp,
-                               dirs, mp * k + lo, flags, busy)
+                               used, tk, t_next - TIME_EPS, t_next - tk, t_next, queued, ringed, Y, 3 * mp * k + lo,
+                               mp, dirs, mp * k + lo, odd, busy)
         if done:
             return k, done
         k += 1
