@@ -19,7 +19,11 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from llvmlite import ir
+from numba import njit, types
+from numba.core import cgutils
+from numba.extending import intrinsic
+from numba.np.arrayobj import make_array
 
 # Lengths closer than this share a cache entry: millis() spacing differences carry
 # ~1e-15 s of float noise, far below any physical effect.
@@ -107,13 +111,14 @@ def phi_gamma_lanes(A: np.ndarray, B: np.ndarray, sets: np.ndarray, h: np.ndarra
 
     The same scaling, Horner steps and squarings in the same order per lane
     (``_scaling``, ``_horner``, ``_square``), so the same bits (tested); a lane
-    needing fewer squarings than the chunk's most keeps its value by a select.
+    needing fewer squarings than the most of its eight keeps its value by a
+    select.
     One exponential on its own is a chain of dependent operations (~300 ns);
     lanes side by side fill the vector units (a few times faster each).
     """
     c = len(sets)
-    W = np.empty(25 * LANE_CHUNK)    # rows of LANE_CHUNK lanes: x (9), b (3), p (9), g (3), squarings;
-    # a constant row length lets LLVM see that the rows never overlap (no run-time alias checks)
+    W = np.zeros(25 * LANE_CHUNK)    # rows of LANE_CHUNK lanes: x (9), b (3), p (9), g (3), squarings
+    # (zeros: the lanes past the last set of a chunk are computed too, on finite numbers)
     for c0 in range(0, c, LANE_CHUNK):
         w = min(LANE_CHUNK, c - c0)
         for i in range(w):
@@ -124,57 +129,77 @@ def phi_gamma_lanes(A: np.ndarray, B: np.ndarray, sets: np.ndarray, h: np.ndarra
                     W[(3 * r + col) * LANE_CHUNK + i] = A[q, r, col] * hs
                 W[(9 + r) * LANE_CHUNK + i] = B[q, r] * hs
             W[24 * LANE_CHUNK + i] = s
-        smax = 0
-        for i in range(w):
-            smax = max(smax, int(W[24 * LANE_CHUNK + i]))
-        for i in range(w):                              # P = I, g = 0
-            _set_lane_pg(W, i, (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0), (0.0, 0.0, 0.0))
-        for j in range(12, 0, -1):
-            _lanes_horner(W, w, 1.0 / j)
-        for k in range(smax):
-            _lanes_square(W, w, k)
+        for i0 in range(0, w, LANE_VEC):                # eight lanes at a time, in registers
+            smax = 0
+            for i in range(i0, min(i0 + LANE_VEC, w)):
+                smax = max(smax, int(W[24 * LANE_CHUNK + i]))
+            _expm_lanes(W, i0, smax)
         for i in range(w):
             for e in range(12):
                 out[e, c0 + i] = W[(12 + e) * LANE_CHUNK + i]
 
 
-@njit(cache=True)
-def _lane_pg(W, i):
-    """Lane i's (P, g) from the chunk's rows 12..23."""
-    c = LANE_CHUNK
-    return ((W[12 * c + i], W[13 * c + i], W[14 * c + i], W[15 * c + i], W[16 * c + i], W[17 * c + i],
-             W[18 * c + i], W[19 * c + i], W[20 * c + i]), (W[21 * c + i], W[22 * c + i], W[23 * c + i]))
+# Lanes per vector register (AVX-512, float64).
+LANE_VEC = 8
+_V = ir.VectorType(ir.DoubleType(), LANE_VEC)
 
 
-@njit(cache=True)
-def _set_lane_pg(W, i, p, g) -> None:
-    c = LANE_CHUNK
-    W[12 * c + i], W[13 * c + i], W[14 * c + i], W[15 * c + i], W[16 * c + i], W[17 * c + i] = p[:6]
-    W[18 * c + i], W[19 * c + i], W[20 * c + i] = p[6:]
-    W[21 * c + i], W[22 * c + i], W[23 * c + i] = g
+@intrinsic
+def _expm_lanes(typingctx, W, i0, smax):
+    """Lanes i0..i0+7 of ``phi_gamma_lanes``' rows: P = I, g = 0, the twelve Horner steps of ``_horner``,
+    then ``_square`` while a lane needs more squarings (row 24; the others keep theirs by a select).
 
+    LLVM vector code with the 24 numbers of eight lanes in registers (a
+    loop over lanes reloaded them at every step); each lane's operations and
+    their order are ``_horner``'s and ``_square``'s, so the same bits.
+    """
+    sig = types.void(W, types.intp, types.intp)
 
-@njit(cache=True, error_model="numpy")
-def _lanes_horner(W, w, r) -> None:
-    """One Horner step (``_horner``) for every lane: lanes inside, so the loop vectorises."""
-    c = LANE_CHUNK
-    for i in range(np.uint64(0), np.uint64(w)):
-        x = (W[i], W[c + i], W[2 * c + i], W[3 * c + i], W[4 * c + i], W[5 * c + i], W[6 * c + i], W[7 * c + i],
-             W[8 * c + i])
-        b = (W[9 * c + i], W[10 * c + i], W[11 * c + i])
-        p, g = _lane_pg(W, i)
-        p, g = _horner(x, b, p, g, r)
-        _set_lane_pg(W, i, p, g)
+    def codegen(context, builder, signature, args):
+        data = make_array(signature.args[0])(context, builder, args[0]).data
+        i0, smax = args[1], args[2]
 
+        def ptr(row):
+            at = builder.add(i0, ir.Constant(ir.IntType(64), row * LANE_CHUNK))
+            return builder.bitcast(builder.gep(data, [at]), _V.as_pointer())
 
-@njit(cache=True, error_model="numpy")
-def _lanes_square(W, w, k) -> None:
-    """Squaring number k for the lanes that need more than k (row 24), the others unchanged (a select)."""
-    for i in range(np.uint64(0), np.uint64(w)):
-        p, g = _lane_pg(W, i)
-        p2, g2 = _square(p, g)
-        use = k < W[24 * LANE_CHUNK + i]
-        _set_lane_pg(W, i, p2 if use else p, g2 if use else g)
+        def const(v):
+            return ir.Constant(_V, [v] * LANE_VEC)
+
+        mul, add = builder.fmul, builder.fadd
+        x = [builder.load(ptr(r), align=8) for r in range(9)]
+        b = [builder.load(ptr(9 + r), align=8) for r in range(3)]
+        squarings = builder.load(ptr(24), align=8)
+        p = [const(1.0 if i in (0, 4, 8) else 0.0) for i in range(9)]
+        g = [const(0.0)] * 3
+        for j in range(12, 0, -1):                  # _horner: P <- I + X P r, g <- (X g + b) r
+            r = const(1.0 / j)
+            rows = [add(add(mul(x[3 * i], p[c]), mul(x[3 * i + 1], p[3 + c])), mul(x[3 * i + 2], p[6 + c]))
+                    for i in range(3) for c in range(3)]
+            p = [add(const(1.0), mul(rows[e], r)) if e in (0, 4, 8) else mul(rows[e], r) for e in range(9)]
+            g = [mul(add(add(add(mul(x[3 * i], g[0]), mul(x[3 * i + 1], g[1])), mul(x[3 * i + 2], g[2])), b[i]), r)
+                 for i in range(3)]
+        cells = [cgutils.alloca_once_value(builder, v) for v in p + g]
+        with cgutils.for_range(builder, smax) as loop:   # _square, where the lane needs squaring number k
+            cur = [builder.load(c) for c in cells]
+            q, h = cur[:9], cur[9:]
+            sq = [add(add(mul(q[3 * i], q[c]), mul(q[3 * i + 1], q[3 + c])), mul(q[3 * i + 2], q[6 + c]))
+                  for i in range(3) for c in range(3)]
+            sg = [add(add(add(mul(q[3 * i], h[0]), mul(q[3 * i + 1], h[1])), mul(q[3 * i + 2], h[2])), h[i])
+                  for i in range(3)]
+            k = builder.sitofp(loop.index, ir.DoubleType())
+            kv = builder.shuffle_vector(builder.insert_element(ir.Constant(_V, ir.Undefined), k,
+                                                               ir.Constant(ir.IntType(32), 0)),
+                                        ir.Constant(_V, ir.Undefined),
+                                        ir.Constant(ir.VectorType(ir.IntType(32), LANE_VEC), [0] * LANE_VEC))
+            use = builder.fcmp_ordered("<", kv, squarings)
+            for c, new, old in zip(cells, sq + sg, cur):
+                builder.store(builder.select(use, new, old), c)
+        for e, c in enumerate(cells):
+            builder.store(builder.load(c), ptr(12 + e), align=8)
+        return context.get_dummy_value()
+
+    return sig, codegen
 
 
 @njit(cache=True)
