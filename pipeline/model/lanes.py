@@ -701,11 +701,13 @@ def _queued_run(t, idx, Pb, A, B, R, guard, Td, log, closed_loop, start, first, 
     reach the motor in (``kernels._delayed``'s queue).
 
     One command on its way per set is the rule (commands are many samples
-    apart) and is handled in vector rows (``_send``, ``_land``); a set with
-    more on their way moves to a ring (``arrive``, ``volts``; ``ringed``,
-    its vector row then empty) handled here, as is a split length a set's
-    cache lacks.  Written out in one function: helpers taking these arrays
-    cost a reference count per array and call, more than the work they do.
+    apart) and is handled in vector rows: past the controller's start in
+    closed loop by one pass per sample (``_queued_free_run``), otherwise by
+    ``_step_motor``, ``_land``, the decision and ``_send``.  A set with more
+    on their way moves to a ring (``arrive``, ``volts``; ``ringed``, its
+    vector row then empty) handled here set by set, as is a split length a
+    set's cache lacks.  Written out in one function: helpers taking these
+    arrays cost a reference count per array and call, more than their work.
     """
     n, mp = len(t), Y.shape[2]
     cap = arrive.shape[1]
