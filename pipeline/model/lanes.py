@@ -840,8 +840,7 @@ def _queued_run(t, idx, Pb, A, B, R, guard, Td, log, closed_loop, start, first, 
 def _queued_free_run(k, n, t, idx, Pb, W, own, BK, BG, used, queued, ringed, Y, dirs, lo, odd, busy, ring_next):
     """Samples k.. of a block with delayed sets, in closed loop past the controller's start, each in one pass
     (``_advance_queued``) until one needs work set by set: returns that sample and its flags (0: a ring's
-    command lands there, not stepped yet), or n.  Kept apart from ``_queued_run`` so that its rare paths do
-    not crowd this loop's registers."""
+    command lands there, not stepped yet), or n.  The rare paths are the caller's."""
     mp = Y.shape[2]
     while k < n:
         tk, t_next = t[k - 1], t[k]
