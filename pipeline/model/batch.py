@@ -10,13 +10,16 @@ loop or replay, with or without loop delay.
 
 The batch saves the ~21 us of Python around each single call (argument checks,
 kernel dispatch, result packaging); its own Python is one pass over the specs
-(``spec_columns``).  Non-smooth specs (Tc, gap) or the continuous guard fall
+(``spec_columns``).  Its blocks of sets are shared out between threads, one
+per core by default (the kernel releases the GIL).  Non-smooth specs (Tc, gap) or the continuous guard fall
 back to a loop of ``simulate`` calls.
 """
 
 from __future__ import annotations
 
+import os
 import struct
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -25,7 +28,7 @@ import numpy as np
 from pipeline.errors import PdrError
 from pipeline.model.effects import PlantSpec
 from pipeline.model.params import MATRIX_PARAMS, state_matrices_of
-from pipeline.model.lanes import lane_outputs, run_linear_lanes
+from pipeline.model.lanes import LANES, lane_outputs, run_linear_lanes
 from pipeline.model.simulate import SimResult, _plan, simulate
 
 
@@ -68,8 +71,17 @@ class BatchResult:
 def simulate_batch(specs: Sequence[PlantSpec], t: np.ndarray | None = None, *, duration: float = 24.95,
                    x0: tuple[float, float, float] = (0.0, 0.0, 0.0), dir0: int = 1,
                    dir_log: np.ndarray | None = None, closed_loop: bool = True,
-                   guard: str = "sampled") -> BatchResult:
-    """``simulate`` for every spec at the same instants and controller settings (see ``simulate``)."""
+                   guard: str = "sampled", threads: int | None = None) -> BatchResult:
+    """``simulate`` for every spec at the same instants and controller settings (see ``simulate``).
+
+    ``threads``: how many threads share the linear sets (default: every core
+    this process may use); each takes whole blocks of 64 sets and writes its
+    own columns, so the results do not depend on it.  A batch of 1000 sets
+    with a loop delay runs ~1.8x faster on two cores; without one, the
+    outputs' memory bandwidth is the limit and two cores gain little.
+    """
+    if threads is not None and threads < 1:
+        raise PdrError(f"expected at least one thread, got {threads}", key="threads")
     specs = list(specs)
     if not specs:
         raise PdrError("expected at least one parameter set", key="specs")
@@ -80,7 +92,7 @@ def simulate_batch(specs: Sequence[PlantSpec], t: np.ndarray | None = None, *, d
         runs = [simulate(s, plan.t, x0=x0, dir0=dir0, dir_log=dir_log, closed_loop=closed_loop, guard=guard)
                 for s in specs]
         return _stack(plan.t, runs, columns)
-    return _run_lanes(columns, plan, np.asarray(x0, dtype=float))
+    return _run_lanes(columns, plan, np.asarray(x0, dtype=float), threads or usable_cores())
 
 
 # Rows of ``spec_columns``: the matrix parameters (``MATRIX_PARAMS``, R first), then the spec's own terms.
@@ -106,12 +118,44 @@ def _stack(t: np.ndarray, runs: list[SimResult], columns: np.ndarray) -> BatchRe
                        v_drive=columns[ROW_V_DRIVE], I0=columns[ROW_I0], R=columns[ROW_R])
 
 
-def _run_lanes(columns: np.ndarray, plan, x0: np.ndarray) -> BatchResult:
-    """Every set through the compiled automaton, side by side (``lanes.run_linear_lanes``)."""
+def usable_cores() -> int:
+    """The cores this process may run on."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
+_pool: tuple[ThreadPoolExecutor, int, int] | None = None
+
+
+def _helpers(n: int) -> ThreadPoolExecutor:
+    """A pool of at least n threads for the lanes kernel (it releases the GIL), kept for later batches.
+
+    A new one after a fork: the child inherits the pool but not its threads.
+    """
+    global _pool
+    if _pool is None or _pool[1] < n or _pool[2] != os.getpid():
+        _pool = (ThreadPoolExecutor(max_workers=n, thread_name_prefix="pdr-lanes"), n, os.getpid())
+    return _pool[0]
+
+
+def _run_lanes(columns: np.ndarray, plan, x0: np.ndarray, threads: int) -> BatchResult:
+    """Every set through the compiled automaton, side by side (``lanes.run_linear_lanes``), the blocks of sets
+    shared out between ``threads`` threads (disjoint output columns)."""
     A, B = state_matrices_of(*columns[:len(MATRIX_PARAMS)])
     m, n = columns.shape[1], len(plan.t)
     Y, dirs = lane_outputs(m, n)
-    run_linear_lanes(plan.t, A, B, columns[ROW_R], columns[ROW_GUARD], columns[ROW_V_DRIVE], columns[ROW_TD], x0,
-                     plan.log, plan.closed_loop, plan.start, plan.first, plan.dir0, Y, dirs)
+    blocks = -(-m // LANES)
+    parts = max(1, min(threads, blocks))
+    bounds = [LANES * (blocks * i // parts) for i in range(parts)] + [m]
+    R, guard, V, Td = columns[ROW_R], columns[ROW_GUARD], columns[ROW_V_DRIVE], columns[ROW_TD]
+
+    def run(i: int) -> None:
+        s = slice(bounds[i], bounds[i + 1])
+        run_linear_lanes(plan.t, A[s], B[s], R[s], guard[s], V[s], Td[s], x0, plan.log, plan.closed_loop,
+                         plan.start, plan.first, plan.dir0, Y, dirs, bounds[i])
+
+    others = [_helpers(parts - 1).submit(run, i) for i in range(1, parts)]
+    run(0)
+    for f in others:
+        f.result()
     return BatchResult(t=plan.t, omega=Y[:, 1, :m].T, current=Y[:, 0, :m].T, delta=Y[:, 2, :m].T, dir=dirs[:, :m].T,
                        v_drive=columns[ROW_V_DRIVE], I0=columns[ROW_I0], R=columns[ROW_R])

@@ -589,8 +589,8 @@ def _queue_capacity(t, Td, undelayed) -> int:
     return most + 2
 
 
-@njit(cache=True)
-def run_linear_lanes(t, A, B, R, guard, V, Td, x0, log, closed_loop, start, first, dir0, Y, dirs) -> None:
+@njit(cache=True, nogil=True)
+def run_linear_lanes(t, A, B, R, guard, V, Td, x0, log, closed_loop, start, first, dir0, Y, dirs, col0) -> None:
     """The automaton for m sets, LANES at a time: fills Y = (current, omega, delta) (n, 3, mp), dirs (n, mp).
 
     A (m, 3, 3), B (m, 3); R, guard, V, Td (m,); the other arguments as
@@ -600,10 +600,12 @@ def run_linear_lanes(t, A, B, R, guard, V, Td, x0, log, closed_loop, start, firs
     """
     n, m = len(t), len(R)
     mp = Y.shape[2]
-    if mp % LANES != 0 or mp < m or Y.ctypes.data % (8 * VEC) != 0 or dirs.shape[1] != mp:
-        raise ValueError("Y, dirs must be lane_outputs(m, n)")
+    blocks = -(-m // LANES)
+    if (mp % LANES != 0 or col0 % LANES != 0 or col0 + LANES * blocks > mp or Y.ctypes.data % (8 * VEC) != 0
+            or dirs.shape[1] != mp):
+        raise ValueError("Y, dirs must be lane_outputs(...) with room for the sets from column col0")
     lengths, idx = step_lengths(t)
-    P = _block_matrices(A, B, lengths, mp)
+    P = _block_matrices(A, B, lengths, LANES * blocks)
     undelayed = np.empty(m, dtype=np.bool_)
     for q in range(m):
         undelayed[q] = closed_loop and Td[q] == 0.0
@@ -620,16 +622,16 @@ def run_linear_lanes(t, A, B, R, guard, V, Td, x0, log, closed_loop, start, firs
     own = np.empty(LANES, dtype=np.uint8)               # 1: the set's command acts at once (no queue)
     queued = np.empty(LANES, dtype=np.uint8)            # its complement
     flags = np.zeros(LANES, dtype=np.uint8)
-    for b in range(mp // LANES):
+    for b in range(blocks):
         _run_block(b, t, idx, P[b], A, B, R, guard, V, Td, x0, log, closed_loop, start, first, dir0, Y, dirs,
-                   undelayed, W, own, queued, flags, queues, splits)
+                   col0 + LANES * b, undelayed, W, own, queued, flags, queues, splits)
     _store_fence()
 
 
 @njit(cache=True)
 def _run_block(b, t, idx, Pb, A, B, R, guard, V, Td, x0, log, closed_loop, start, first, dir0, Y, dirs,
-               undelayed, W, own, queued, flags, queues, splits) -> None:
-    """Block b (sets LANES b ...) through every sample."""
+               out, undelayed, W, own, queued, flags, queues, splits) -> None:
+    """Block b (sets LANES b ..., output columns out ...) through every sample."""
     n, m, mp = len(t), len(R), Y.shape[2]
     lo = LANES * b
     n_queued = 0
@@ -653,18 +655,18 @@ def _run_block(b, t, idx, Pb, A, B, R, guard, V, Td, x0, log, closed_loop, start
                 BK[c * LANES + l] = keys[q, c] if c < bn[l] else np.nan
                 for r in range(3):
                     BG[(3 * c + r) * LANES + l] = gammas[q, c, r] if c < bn[l] else 0.0
-        _queued_run(t, idx, Pb, A, B, R, guard, Td, log, closed_loop, start, first, dir0, Y, dirs, lo, W, own,
+        _queued_run(t, idx, Pb, A, B, R, guard, Td, log, closed_loop, start, first, dir0, Y, dirs, lo, out, W, own,
                     queued, flags, busy, arrive, volts, head, count, ringed, BK, BG, bn, G)
         return
     d_old, d_new = ROW_D0, ROW_D1
     for k in range(n):
         if closed_loop and k > start:                   # nothing left but the sampled guard
-            _free_run(k, n, Pb, idx, W, d_old, Y, dirs, lo, mp)
+            _free_run(k, n, Pb, idx, W, d_old, Y, dirs, out, mp)
             return
         if k > 0:
             _step(Pb, 12 * LANES * idx[k - 1], W, d_old)
             _decide_block(k, W, d_old, d_new, lo, R, guard, log, closed_loop, start, first, dir0)
-        _emit(Y, 3 * mp * k + lo, mp, W, dirs, mp * k + lo, d_new)
+        _emit(Y, 3 * mp * k + out, mp, W, dirs, mp * k + out, d_new)
         d_old, d_new = d_new, d_old
 
 
@@ -685,17 +687,18 @@ def _decide_block(k, W, d_old, d_new, lo, R, guard, log, closed_loop, start, fir
 
 
 @njit(cache=True)
-def _free_run(k0, n, Pb, idx, W, d_old, Y, dirs, lo, mp) -> None:
-    """Samples k0.. of a block with no queue, in closed loop past the controller's start: step, guard, out."""
+def _free_run(k0, n, Pb, idx, W, d_old, Y, dirs, out, mp) -> None:
+    """Samples k0.. of a block with no queue, in closed loop past the controller's start: step, guard,
+    outputs (to columns out ...)."""
     stride = 12 * LANES
     d_new = ROW_D0 + ROW_D1 - d_old
     for k in range(k0, n):
-        _advance(Pb, stride * idx[k - 1], W, d_old, d_new, Y, 3 * mp * k + lo, mp, dirs, mp * k + lo)
+        _advance(Pb, stride * idx[k - 1], W, d_old, d_new, Y, 3 * mp * k + out, mp, dirs, mp * k + out)
         d_old, d_new = d_new, d_old
 
 
 @njit(cache=True)
-def _queued_run(t, idx, Pb, A, B, R, guard, Td, log, closed_loop, start, first, dir0, Y, dirs, lo, W, own,
+def _queued_run(t, idx, Pb, A, B, R, guard, Td, log, closed_loop, start, first, dir0, Y, dirs, lo, out, W, own,
                 queued, flags, busy, arrive, volts, head, count, ringed, BK, BG, bn, G) -> None:
     """A block with delayed sets through every sample: their commands travel Td and land inside the step they
     reach the motor in (``kernels._delayed``'s queue).
@@ -721,7 +724,7 @@ def _queued_run(t, idx, Pb, A, B, R, guard, Td, log, closed_loop, start, first, 
     k = 0
     while k < n:
         if closed_loop and k > start:                   # the usual samples: one pass each (``_queued_free_run``)
-            k, done = _queued_free_run(k, n, t, idx, Pb, W, own, BK, BG, used, queued, ringed, Y, dirs, lo, odd,
+            k, done = _queued_free_run(k, n, t, idx, Pb, W, own, BK, BG, used, queued, ringed, Y, dirs, out, odd,
                                        busy, ring_next)
             if k == n:
                 break
@@ -757,8 +760,8 @@ def _queued_run(t, idx, Pb, A, B, R, guard, Td, log, closed_loop, start, first, 
                         else:
                             busy[l] = 1
                             done += 1 << 32
-                    Y[k, 0, lo + l], Y[k, 1, lo + l], Y[k, 2, lo + l] = W[ROW_I, l], W[ROW_W, l], W[ROW_DELTA, l]
-                    dirs[k, lo + l] = np.int8(dn)
+                    Y[k, 0, out + l], Y[k, 1, out + l], Y[k, 2, out + l] = W[ROW_I, l], W[ROW_W, l], W[ROW_DELTA, l]
+                    dirs[k, out + l] = np.int8(dn)
                     odd[l] = 0
             if done >> 32:
                 for l in range(LANES):
@@ -832,12 +835,12 @@ def _queued_run(t, idx, Pb, A, B, R, guard, Td, log, closed_loop, start, first, 
                 if flags[l]:
                     _to_ring(l, t[k] + Td[lo + l], W[d_new, l] * W[ROW_V, l], W, arrive, volts, head, count, ringed)
             ring_next = _ring_next(arrive, head, ringed)
-        _emit(Y, 3 * mp * k + lo, mp, W, dirs, mp * k + lo, d_new)
+        _emit(Y, 3 * mp * k + out, mp, W, dirs, mp * k + out, d_new)
         k += 1
 
 
 @njit(cache=True)
-def _queued_free_run(k, n, t, idx, Pb, W, own, BK, BG, used, queued, ringed, Y, dirs, lo, odd, busy, ring_next):
+def _queued_free_run(k, n, t, idx, Pb, W, own, BK, BG, used, queued, ringed, Y, dirs, out, odd, busy, ring_next):
     """Samples k.. of a block with delayed sets, in closed loop past the controller's start, each in one pass
     (``_advance_queued``) until one needs work set by set: returns that sample and its flags (0: a ring's
     command lands there, not stepped yet), or n.  The rare paths are the caller's."""
@@ -847,8 +850,8 @@ def _queued_free_run(k, n, t, idx, Pb, W, own, BK, BG, used, queued, ringed, Y, 
         if ring_next < t_next - TIME_EPS:
             return k, 0
         done = _advance_queued(Pb, 12 * LANES * idx[k - 1], W, ROW_D0 + (k & 1), ROW_D1 - (k & 1), own, BK, BG,
-                               used, tk, t_next - TIME_EPS, t_next - tk, t_next, queued, ringed, Y, 3 * mp * k + lo,
-                               mp, dirs, mp * k + lo, odd, busy)
+                               used, tk, t_next - TIME_EPS, t_next - tk, t_next, queued, ringed, Y, 3 * mp * k + out,
+                               mp, dirs, mp * k + out, odd, busy)
         if done:
             return k, done
         k += 1

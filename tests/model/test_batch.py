@@ -214,3 +214,18 @@ def test_a_dropped_result_leaves_its_memory_to_the_next_batch():
     assert again.omega.__array_interface__["data"][0] == address
     for i, s in enumerate(specs):
         assert np.array_equal(again.omega[i], simulate(s, T).omega)
+
+
+def test_the_result_does_not_depend_on_the_threads():
+    # each thread takes whole blocks of 64 sets and writes its own output columns
+    sets = _linear_sets(n=200, seed=19)
+    specs = [replace(s, Td=td) for s, td in zip(sets, np.tile([0.0, 0.03, 0.07, 0.0, 0.13], 40))]
+    one = simulate_batch(specs, T, threads=1)
+    omega, delta, dirs = one.omega.copy(), one.delta.copy(), one.dir.copy()
+    del one
+    for threads in (2, 3, 7):
+        many = simulate_batch(specs, T, threads=threads)
+        assert np.array_equal(many.omega, omega) and np.array_equal(many.delta, delta)
+        assert np.array_equal(many.dir, dirs)
+    with pytest.raises(PdrError, match="threads"):
+        simulate_batch(specs, T, threads=0)
