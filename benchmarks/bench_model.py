@@ -16,7 +16,9 @@ of back-to-back calls of about the same length (1000 single calls; 20
 batches, each result dropped as a fitting loop drops it): a lone 1 ms batch
 right after other work runs up to ~50 % slower on this shared VM (caches and
 clock cold; a 30 ms sleep before it does the same), which the 1000-call loop
-of the other side amortises.  That lone first call is printed too.  The compiled kernels (numba) are
+of the other side amortises.  That lone first call is printed too, and the
+batch on one thread (by default it shares its blocks of sets between the
+cores; the single calls cannot).  The compiled kernels (numba) are
 warmed first (``pipeline.model.compile.compile_kernels``: one call of every compiled path), so no ratio
 includes a JIT compile or a load from numba's cache; those one-off costs are
 reported separately on the first line.  Both sides of every ratio are the
@@ -38,7 +40,7 @@ import numpy as np
 
 from benchmarks.bench_rig import best_of
 from pipeline.config import default_config
-from pipeline.model.batch import simulate_batch
+from pipeline.model.batch import simulate_batch, usable_cores
 from pipeline.model.compile import compile_kernels
 from pipeline.model.effects import (Backlash, CoulombFriction, CurrentSensorOffset, DriverVoltageDrop, LoopDelay,
                                     RackInertia, SpringStiffness, ViscousFriction, build_spec)
@@ -100,17 +102,19 @@ def bench_batch(t: np.ndarray, n: int = 1000) -> list[float]:
             for s in specs:
                 simulate(s, t, **kw)
 
-        def batches():
+        def batches(threads=None):
             for _ in range(BATCH_LOOP):                 # each result dropped, as a fitting loop drops it
-                simulate_batch(specs, t, **kw)
+                simulate_batch(specs, t, threads=threads, **kw)
         single = best_of(singles, repeat=3)
         start = time.perf_counter()
         simulate_batch(specs, t, **kw)
         lone = time.perf_counter() - start
         batch = best_of(batches, repeat=3) / BATCH_LOOP
+        one_thread = best_of(lambda: batches(1), repeat=3) / BATCH_LOOP
         ratio = single / batch
         print(_line(f"{n} x simulate ({tag})", single))
-        print(_line(f"simulate_batch ({tag})", batch, ratio, 20))
+        print(_line(f"simulate_batch ({tag}), {usable_cores()} threads", batch, ratio, 20))
+        print(_line("  on one thread", one_thread, single / one_thread))
         print(_line("  its first call after the single calls", lone, single / lone))
         ratios.append(ratio)
     return ratios
