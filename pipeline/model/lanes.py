@@ -10,16 +10,16 @@ the samples before the next block starts:
   matrices from L2 at every sample cost more than the arithmetic);
 - each step is LLVM vector code, eight sets to an AVX-512 register: every set
   moves by its own step matrices with the motor voltage it had at the start
-  of the step (``_step``), and the sampled guard is a sign flip when
-  d * delta >= ``guard_threshold`` (``_flip``: no division, a select); the
+  of the step (``block_ir.step``), and the sampled guard is a sign flip when
+  d * delta >= ``guard_threshold`` (``flip``: no division, a select); the
   block's eight-set vectors are independent, so their chains overlap;
 - a delayed set's command travels in two vector rows (arrival, volts) and
   lands inside the step it reaches the motor in, adding ``kernels._delayed``'s
-  correction ``Gamma(h - a) du`` (``_send``, ``_land``); the rare set with
+  correction ``Gamma(h - a) du`` (``send``, ``land``); the rare set with
   several commands on their way, or a split length its cache lacks, is
   handled one set at a time;
 - past the controller's start in closed loop, each sample is one pass over
-  the block's vectors (``_advance``, ``_advance_queued``): a vector's outputs
+  the block's vectors (``advance``, ``advance_queued``): a vector's outputs
   leave, as whole 64-byte lines by non-temporal stores, right after it is
   computed, so the 12.5 MB of 1000 sets x 500 samples stream out while the
   arithmetic goes on (writing them after each step, or with ordinary stores
@@ -36,420 +36,13 @@ import sys
 import threading
 
 import numpy as np
-from llvmlite import ir
-from numba import njit, types
-from numba.core import cgutils
-from numba.extending import intrinsic
-from numba.np.arrayobj import make_array
+from numba import njit
 
+from pipeline.model.block_ir import (LANES, MAX_SPLITS, ROW_D0, ROW_D1, ROW_DELTA, ROW_I, ROW_NEXT, ROW_NV, ROW_TD,
+                                     ROW_THR, ROW_U, ROW_V, ROW_W, STEP_ENTRIES, VEC, WORK_ROWS, advance,
+                                     advance_queued, emit, fill, flip, land, send, step, step_motor, store_fence)
 from pipeline.model.kernels import TIME_EPS, decide
 from pipeline.model.linear import phi_gamma_into, phi_gamma_lanes, step_key, step_lengths
-
-# Sets per vector: one AVX-512 register of float64, a 64-byte cache line.
-VEC = 8
-# Sets per block: their matrices (2 lengths: 12 kB) and state stay in L1; their output rows are long enough
-# to stream.
-LANES = 64
-# Rows of a block's work array W (each LANES wide): state, command (two rows: before and after a sample),
-# motor voltage, drive, guard threshold, loop delay, the next command on its way (arrival instant, volts).
-ROW_I, ROW_W, ROW_DELTA, ROW_D0, ROW_D1, ROW_U, ROW_V, ROW_THR, ROW_TD, ROW_NEXT, ROW_NV = range(11)
-WORK_ROWS = 11
-# Gamma(h - a) remembered per set (split lengths of a fixed Td: a few).
-MAX_SPLITS = 8
-
-_I64 = ir.IntType(64)
-_V8 = ir.VectorType(ir.DoubleType(), VEC)
-_B8 = ir.VectorType(ir.IntType(8), VEC)
-
-
-def _ptr(context, builder, ty, value, index, vec=_V8):
-    """Pointer to a ``vec`` at flat element ``index`` (an i64 value) of a C-contiguous array argument."""
-    data = make_array(ty)(context, builder, value).data
-    return builder.bitcast(builder.gep(data, [index]), vec.as_pointer())
-
-
-def _at(builder, base, offset: int):
-    """base (an i64 value, or None for 0) + a constant offset."""
-    c = ir.Constant(_I64, offset)
-    return c if base is None else builder.add(base, c)
-
-
-def _row_index(builder, row, v: int):
-    """Flat index of vector v of work row ``row`` (an i64 value or a constant row number)."""
-    if isinstance(row, int):
-        return ir.Constant(_I64, LANES * row + VEC * v)
-    return builder.add(builder.mul(row, ir.Constant(_I64, LANES)), ir.Constant(_I64, VEC * v))
-
-
-class _Rows:
-    """Loads and stores of eight-set vectors of one array argument inside an intrinsic's codegen."""
-
-    def __init__(self, context, builder, ty, value):
-        self.c, self.b, self.ty, self.value = context, builder, ty, value
-
-    def load(self, index, vec=_V8):
-        return self.b.load(_ptr(self.c, self.b, self.ty, self.value, index, vec), align=8 if vec is _V8 else 1)
-
-    def store(self, index, x, vec=_V8, align=8):
-        return self.b.store(x, _ptr(self.c, self.b, self.ty, self.value, index, vec), align=align)
-
-    def row(self, row, v: int):
-        return self.load(_row_index(self.b, row, v))
-
-    def set_row(self, row, v: int, x):
-        self.store(_row_index(self.b, row, v), x)
-
-
-def _step_codegen(motor: bool):
-    def codegen(context, builder, signature, args):
-        P, W = _Rows(context, builder, signature.args[0], args[0]), _Rows(context, builder, signature.args[2], args[2])
-        p, d_row = args[1], args[3]
-        own = _Rows(context, builder, signature.args[4], args[4]) if motor else None
-        for v in range(LANES // VEC):
-            pe = [P.load(_at(builder, p, LANES * e + VEC * v)) for e in range(12)]
-            x = [W.row(r, v) for r in (ROW_I, ROW_W, ROW_DELTA)]
-            u = builder.fmul(W.row(d_row, v), W.row(ROW_V, v))
-            if motor:                       # a set with a queue: the voltage its motor has
-                flags = own.load(ir.Constant(_I64, VEC * v), _B8)
-                u = builder.select(builder.icmp_unsigned("!=", flags, ir.Constant(_B8, [0] * VEC)), u,
-                                   W.row(ROW_U, v))
-            for r in range(3):
-                acc = builder.fadd(builder.fmul(pe[3 * r], x[0]), builder.fmul(pe[3 * r + 1], x[1]))
-                acc = builder.fadd(acc, builder.fmul(pe[3 * r + 2], x[2]))
-                W.set_row(r, v, builder.fadd(acc, builder.fmul(pe[9 + r], u)))
-        return context.get_dummy_value()
-    return codegen
-
-
-@intrinsic
-def _step(typingctx, P, p, W, d_row):
-    """One step of a block whose commands act at once: S <- Phi S + Gamma u, u = d V.
-
-    P: the block's step matrices, the 12 entries of this step's length from
-    flat index p (a row of LANES sets each); W: the block's work rows, d_row
-    the command's.  The sums in ``kernels``' order, ((P0 I + P1 w) + P2 delta)
-    + P9 u, with no fused multiply-adds (numba does not contract), so each set
-    gets the single call's bits.
-    """
-    return types.void(P, types.intp, W, types.intp), _step_codegen(False)
-
-
-@intrinsic
-def _step_motor(typingctx, P, p, W, d_row, own):
-    """``_step`` where a set may have a queue (own[l] == 0): its u is the motor's voltage (row ROW_U)."""
-    return types.void(P, types.intp, W, types.intp, own), _step_codegen(True)
-
-
-@intrinsic
-def _flip(typingctx, W, d_old, d_new):
-    """The sampled guard for a block: d_new = d - 2 d [d delta >= threshold] (exact for d = +-1)."""
-    sig = types.void(W, types.intp, types.intp)
-
-    def codegen(context, builder, signature, args):
-        W = _Rows(context, builder, signature.args[0], args[0])
-        two = ir.Constant(_V8, [2.0] * VEC)
-        for v in range(LANES // VEC):
-            dq = W.row(args[1], v)
-            flag = builder.uitofp(builder.fcmp_ordered(">=", builder.fmul(dq, W.row(ROW_DELTA, v)),
-                                                       W.row(ROW_THR, v)), _V8)
-            W.set_row(args[2], v, builder.fsub(dq, builder.fmul(builder.fmul(two, dq), flag)))
-        return context.get_dummy_value()
-
-    return sig, codegen
-
-
-def _splat(builder, x):
-    """An eight-lane vector of the scalar value x."""
-    v = builder.insert_element(ir.Constant(_V8, ir.Undefined), x, ir.Constant(ir.IntType(32), 0))
-    return builder.shuffle_vector(v, ir.Constant(_V8, ir.Undefined), ir.Constant(ir.VectorType(ir.IntType(32), VEC),
-                                                                             [0] * VEC))
-
-
-def _const(x: float):
-    return ir.Constant(_V8, [x] * VEC)
-
-
-def _mask_of(builder, rows, v: int):
-    """Lanes of vector v whose byte in ``rows`` (a uint8 array argument) is non-zero."""
-    return builder.icmp_unsigned("!=", rows.load(ir.Constant(_I64, VEC * v), _B8), ir.Constant(_B8, [0] * VEC))
-
-
-def _count(builder, mask):
-    return builder.zext(builder.ctpop(builder.bitcast(mask, ir.IntType(VEC))), _I64)
-
-
-@intrinsic
-def _land(typingctx, W, P, p, BK, BG, tk, limit, h, flags):
-    """The commands reaching their motors inside the step from tk (length h), vectorised: where a set's
-    command on its way (rows ROW_NEXT, ROW_NV) arrives before ``limit`` (t_k+1 - TIME_EPS), the motor takes
-    its voltage and the state gets ``kernels._delayed``'s correction 0 + Gamma(h - a) du.
-
-    Gamma(h - a) is the step's own Gamma (a <= TIME_EPS) or the set's split cache entry for the key
-    ``step_key(h - a)`` (numba's round(x, 12): rint(x 1e12) / 1e12, the same operations): BK (slot, lane)
-    keys, BG (slot, row, lane) Gammas.  A set whose cache lacks the key is left untouched and flagged for
-    the scalar path; returns how many.
-    """
-    sig = types.int64(W, P, types.intp, BK, BG, types.float64, types.float64, types.float64, flags)
-
-    def codegen(context, builder, signature, args):
-        W, P, BK, BG, flags = (_Rows(context, builder, signature.args[i], args[i]) for i in (0, 1, 3, 4, 8))
-        p, tk, limit, h = args[2], args[5], args[6], args[7]
-        count = cgutils.alloca_once_value(builder, ir.Constant(_I64, 0))
-        rint = cgutils.get_or_insert_function(builder.module, ir.FunctionType(_V8, [_V8]), "llvm.rint.v8f64")
-        no = ir.Constant(_B8, [0] * VEC)
-        for v in range(LANES // VEC):
-            nxt = W.row(ROW_NEXT, v)
-            due = builder.fcmp_ordered("<", nxt, _splat(builder, limit))
-            flags.store(ir.Constant(_I64, VEC * v), no, _B8, align=1)
-            any_due = builder.icmp_unsigned("!=", builder.bitcast(due, ir.IntType(VEC)), ir.Constant(ir.IntType(VEC), 0))
-            with builder.if_then(any_due, likely=False):
-                U, NV = W.row(ROW_U, v), W.row(ROW_NV, v)
-                du = builder.fsub(NV, U)
-                a = builder.fsub(nxt, _splat(builder, tk))
-                key = builder.fdiv(builder.call(rint, [builder.fmul(builder.fsub(_splat(builder, h), a), _const(1e12))]),
-                                   _const(1e12))
-                g = [_const(0.0)] * 3
-                found = ir.Constant(ir.VectorType(ir.IntType(1), VEC), [0] * VEC)
-                for slot in range(MAX_SPLITS):
-                    hit = builder.fcmp_ordered("==", key, BK.row(slot, v))
-                    found = builder.or_(found, hit)
-                    g = [builder.select(hit, BG.row(3 * slot + r, v), g[r]) for r in range(3)]
-                at_start = builder.fcmp_ordered("<=", a, _const(TIME_EPS))
-                g = [builder.select(at_start, P.load(_at(builder, p, (9 + r) * LANES + VEC * v)), g[r]) for r in range(3)]
-                moved = builder.fcmp_unordered("!=", du, _const(0.0))
-                miss = builder.and_(builder.and_(due, moved), builder.not_(builder.or_(at_start, found)))
-                ok = builder.and_(due, builder.not_(miss))
-                apply = builder.and_(ok, moved)
-                for r in range(3):
-                    e = builder.fadd(_const(0.0), builder.fmul(g[r], du))
-                    x = W.row(r, v)
-                    W.set_row(r, v, builder.select(apply, builder.fadd(x, e), x))
-                W.set_row(ROW_U, v, builder.select(ok, NV, U))
-                W.set_row(ROW_NEXT, v, builder.select(ok, _const(np.inf), nxt))
-                flags.store(ir.Constant(_I64, VEC * v), builder.zext(miss, _B8), _B8, align=1)
-                builder.store(builder.add(builder.load(count), _count(builder, miss)), count)
-        return builder.load(count)
-
-    return sig, codegen
-
-
-@intrinsic
-def _fill(typingctx, W, row, value):
-    """Work row ``row`` = value (every set gets the logged command)."""
-    sig = types.void(W, types.intp, types.float64)
-
-    def codegen(context, builder, signature, args):
-        W = _Rows(context, builder, signature.args[0], args[0])
-        for v in range(LANES // VEC):
-            W.set_row(args[1], v, _splat(builder, args[2]))
-        return context.get_dummy_value()
-
-    return sig, codegen
-
-
-@intrinsic
-def _send(typingctx, W, d_old, d_new, tk, queued, ringed, flags):
-    """The commands decided at tk, vectorised: a delayed set whose command changed and has none on its way
-    gets it in rows ROW_NEXT (tk + Td) and ROW_NV (d V volts), as ``kernels._delayed`` files it.  Sets that
-    already have one on their way (or a ring) are flagged for the scalar ring; returns how many."""
-    sig = types.int64(W, types.intp, types.intp, types.float64, queued, ringed, flags)
-
-    def codegen(context, builder, signature, args):
-        W, queued, ringed, flags = (_Rows(context, builder, signature.args[i], args[i]) for i in (0, 4, 5, 6))
-        d_old, d_new, tk = args[1], args[2], args[3]
-        count = cgutils.alloca_once_value(builder, ir.Constant(_I64, 0))
-        no = ir.Constant(_B8, [0] * VEC)
-        for v in range(LANES // VEC):
-            dn = W.row(d_new, v)
-            changed = builder.and_(builder.fcmp_unordered("!=", W.row(d_old, v), dn), _mask_of(builder, queued, v))
-            flags.store(ir.Constant(_I64, VEC * v), no, _B8, align=1)
-            any_changed = builder.icmp_unsigned("!=", builder.bitcast(changed, ir.IntType(VEC)),
-                                                ir.Constant(ir.IntType(VEC), 0))
-            with builder.if_then(any_changed, likely=False):
-                nxt = W.row(ROW_NEXT, v)
-                free = builder.and_(builder.fcmp_ordered("==", nxt, _const(np.inf)),
-                                    builder.not_(_mask_of(builder, ringed, v)))
-                simple = builder.and_(changed, free)
-                busy = builder.and_(changed, builder.not_(free))
-                W.set_row(ROW_NEXT, v, builder.select(simple, builder.fadd(_splat(builder, tk), W.row(ROW_TD, v)), nxt))
-                W.set_row(ROW_NV, v, builder.select(simple, builder.fmul(dn, W.row(ROW_V, v)), W.row(ROW_NV, v)))
-                flags.store(ir.Constant(_I64, VEC * v), builder.zext(busy, _B8), _B8, align=1)
-                builder.store(builder.add(builder.load(count), _count(builder, busy)), count)
-        return builder.load(count)
-
-    return sig, codegen
-
-
-@intrinsic
-def _emit(typingctx, Y, y, stride, W, dirs, di, d_row):
-    """A block's sample outputs: its current, omega and delta rows to Y[y], Y[y + stride], Y[y + 2 stride]
-    (whole cache lines: Y + y 64-byte aligned), its command row as int8 to dirs[di:di + LANES]."""
-    sig = types.void(Y, types.intp, types.intp, W, dirs, types.intp, types.intp)
-
-    def codegen(context, builder, signature, args):
-        Yr, W = _Rows(context, builder, signature.args[0], args[0]), _Rows(context, builder, signature.args[3], args[3])
-        out = _Rows(context, builder, signature.args[4], args[4])
-        y, stride, di, d_row = args[1], args[2], args[5], args[6]
-        nontemporal = builder.module.add_metadata([ir.Constant(ir.IntType(32), 1)])
-        for v in range(LANES // VEC):
-            for r in range(3):
-                at = builder.add(y, builder.add(builder.mul(stride, ir.Constant(_I64, r)), ir.Constant(_I64, VEC * v)))
-                Yr.store(at, W.row(r, v), align=8 * VEC).set_metadata("nontemporal", nontemporal)
-            out.store(_at(builder, di, VEC * v), builder.fptosi(W.row(d_row, v), _B8), _B8, align=1)
-        return context.get_dummy_value()
-
-    return sig, codegen
-
-
-@intrinsic
-def _advance(typingctx, P, p, W, d_old, d_new, Y, y, stride, dirs, di):
-    """``_step``, ``_flip`` and ``_emit`` in one pass over a block's vectors (a block with no queue past
-    the controller's start): each vector's outputs leave right after it is computed, so the stores spread
-    over the arithmetic instead of queueing behind it."""
-    sig = types.void(P, types.intp, W, types.intp, types.intp, Y, types.intp, types.intp, dirs, types.intp)
-
-    def codegen(context, builder, signature, args):
-        P, W, Yr, out = (_Rows(context, builder, signature.args[i], args[i]) for i in (0, 2, 5, 8))
-        p, d_old, d_new, y, stride, di = args[1], args[3], args[4], args[6], args[7], args[9]
-        nontemporal = builder.module.add_metadata([ir.Constant(ir.IntType(32), 1)])
-        two = ir.Constant(_V8, [2.0] * VEC)
-        for v in range(LANES // VEC):
-            pe = [P.load(_at(builder, p, LANES * e + VEC * v)) for e in range(12)]
-            x = [W.row(r, v) for r in (ROW_I, ROW_W, ROW_DELTA)]
-            dq = W.row(d_old, v)
-            u = builder.fmul(dq, W.row(ROW_V, v))
-            new = []
-            for r in range(3):
-                acc = builder.fadd(builder.fmul(pe[3 * r], x[0]), builder.fmul(pe[3 * r + 1], x[1]))
-                acc = builder.fadd(acc, builder.fmul(pe[3 * r + 2], x[2]))
-                new.append(builder.fadd(acc, builder.fmul(pe[9 + r], u)))
-                W.set_row(r, v, new[r])
-                at = builder.add(y, builder.add(builder.mul(stride, ir.Constant(_I64, r)), ir.Constant(_I64, VEC * v)))
-                Yr.store(at, new[r], align=8 * VEC).set_metadata("nontemporal", nontemporal)
-            flag = builder.uitofp(builder.fcmp_ordered(">=", builder.fmul(dq, new[2]), W.row(ROW_THR, v)), _V8)
-            dn = builder.fsub(dq, builder.fmul(builder.fmul(two, dq), flag))
-            W.set_row(d_new, v, dn)
-            out.store(_at(builder, di, VEC * v), builder.fptosi(dn, _B8), _B8, align=1)
-        return context.get_dummy_value()
-
-    return sig, codegen
-
-
-@intrinsic
-def _advance_queued(typingctx, P, p, W, d_old, d_new, own, BK, BG, used, tk, limit, h, t_now, queued, ringed, Y, y,
-                    stride, dirs, di, odd, busy):
-    """A block with delayed sets, one sample on in closed loop past the controller's start, in one pass
-    over its vectors: ``_step_motor``, ``_land``, ``_flip``, ``_send`` and ``_emit`` (see them), so each
-    vector's outputs leave right after it is computed.  ``used``: the split cache slots any set of the
-    block has filled.
-
-    A vector where a set's split length is not in its cache is stored
-    before the guard and flagged in ``odd`` (1 for that set, 2 for the others
-    of its vector): the caller lands that set and finishes the vector one set
-    at a time.  Sets whose new command finds one on its way are flagged in
-    ``busy`` for the ring.  Only flags are written: the caller clears them.
-    Returns flagged vectors + 2^32 x busy sets.
-    """
-    sig = types.int64(P, types.intp, W, types.intp, types.intp, own, BK, BG, types.intp, types.float64,
-                      types.float64, types.float64, types.float64, queued, ringed, Y, types.intp, types.intp, dirs,
-                      types.intp, odd, busy)
-
-    def codegen(context, builder, signature, args):
-        P, W, own, BK, BG, queued, ringed, Yr, out, odd, busy = (
-            _Rows(context, builder, signature.args[i], args[i]) for i in (0, 2, 5, 6, 7, 13, 14, 15, 18, 20, 21))
-        p, d_old, d_new, used, tk, limit, h, t_now, y, stride, di = (
-            args[i] for i in (1, 3, 4, 8, 9, 10, 11, 12, 16, 17, 19))
-        nontemporal = builder.module.add_metadata([ir.Constant(ir.IntType(32), 1)])
-        rint = cgutils.get_or_insert_function(builder.module, ir.FunctionType(_V8, [_V8]), "llvm.rint.v8f64")
-        i1v = ir.VectorType(ir.IntType(1), VEC)
-        no = ir.Constant(_B8, [0] * VEC)
-        none = ir.Constant(ir.IntType(VEC), 0)
-        deferred = cgutils.alloca_once_value(builder, ir.Constant(_I64, 0))
-        waiting = cgutils.alloca_once_value(builder, ir.Constant(_I64, 0))
-        slots = [cgutils.alloca_once(builder, _V8) for _ in range(7)]     # state (3), NEXT, Gamma (3)
-        missing, found = cgutils.alloca_once(builder, i1v), cgutils.alloca_once(builder, i1v)
-        for v in range(LANES // VEC):
-            at = ir.Constant(_I64, VEC * v)
-            pe = [P.load(_at(builder, p, LANES * e + VEC * v)) for e in range(12)]
-            x = [W.row(r, v) for r in (ROW_I, ROW_W, ROW_DELTA)]
-            dq, U, nxt = W.row(d_old, v), W.row(ROW_U, v), W.row(ROW_NEXT, v)
-            mine = builder.icmp_unsigned("!=", own.load(at, _B8), no)
-            u = builder.select(mine, builder.fmul(dq, W.row(ROW_V, v)), U)
-            for r in range(3):
-                acc = builder.fadd(builder.fmul(pe[3 * r], x[0]), builder.fmul(pe[3 * r + 1], x[1]))
-                acc = builder.fadd(acc, builder.fmul(pe[3 * r + 2], x[2]))
-                builder.store(builder.fadd(acc, builder.fmul(pe[9 + r], u)), slots[r])
-            builder.store(nxt, slots[3])
-            builder.store(ir.Constant(i1v, [0] * VEC), missing)
-            due = builder.fcmp_ordered("<", nxt, _splat(builder, limit))
-            with builder.if_then(builder.icmp_unsigned("!=", builder.bitcast(due, ir.IntType(VEC)), none),
-                                 likely=False):
-                NV = W.row(ROW_NV, v)
-                du = builder.fsub(NV, U)
-                a = builder.fsub(nxt, _splat(builder, tk))
-                key = builder.fdiv(builder.call(rint, [builder.fmul(builder.fsub(_splat(builder, h), a), _const(1e12))]),
-                                   _const(1e12))
-                for r in range(3):
-                    builder.store(_const(0.0), slots[4 + r])
-                builder.store(ir.Constant(i1v, [0] * VEC), found)
-                with cgutils.for_range(builder, used) as loop:     # the slots in use only
-                    hit = builder.fcmp_ordered("==", key, BK.row(loop.index, v))
-                    builder.store(builder.or_(builder.load(found), hit), found)
-                    row = builder.mul(loop.index, ir.Constant(_I64, 3))
-                    for r in range(3):
-                        g = BG.row(builder.add(row, ir.Constant(_I64, r)), v)
-                        builder.store(builder.select(hit, g, builder.load(slots[4 + r])), slots[4 + r])
-                at_start = builder.fcmp_ordered("<=", a, _const(TIME_EPS))
-                g = [builder.select(at_start, P.load(_at(builder, p, (9 + r) * LANES + VEC * v)),
-                                    builder.load(slots[4 + r])) for r in range(3)]
-                moved = builder.fcmp_unordered("!=", du, _const(0.0))
-                miss = builder.and_(builder.and_(due, moved), builder.not_(builder.or_(at_start, builder.load(found))))
-                ok = builder.and_(due, builder.not_(miss))
-                apply = builder.and_(ok, moved)
-                for r in range(3):
-                    e = builder.fadd(_const(0.0), builder.fmul(g[r], du))
-                    xr = builder.load(slots[r])
-                    builder.store(builder.select(apply, builder.fadd(xr, e), xr), slots[r])
-                W.set_row(ROW_U, v, builder.select(ok, NV, U))
-                landed = builder.select(ok, _const(np.inf), nxt)
-                W.set_row(ROW_NEXT, v, landed)
-                builder.store(landed, slots[3])
-                builder.store(miss, missing)
-            new = [builder.load(slots[r]) for r in range(3)]
-            for r in range(3):
-                W.set_row(r, v, new[r])
-            nxt = builder.load(slots[3])
-            miss = builder.load(missing)
-            with builder.if_else(builder.icmp_unsigned("!=", builder.bitcast(miss, ir.IntType(VEC)), none),
-                                 likely=False) as (unusual, usual):
-                with unusual:                           # the caller finishes this vector
-                    odd.store(at, builder.select(miss, ir.Constant(_B8, [1] * VEC), ir.Constant(_B8, [2] * VEC)),
-                              _B8, align=1)
-                    builder.store(builder.add(builder.load(deferred), ir.Constant(_I64, 1)), deferred)
-                with usual:
-                    flag = builder.uitofp(builder.fcmp_ordered(">=", builder.fmul(dq, new[2]), W.row(ROW_THR, v)), _V8)
-                    dn = builder.fsub(dq, builder.fmul(builder.fmul(_const(2.0), dq), flag))
-                    W.set_row(d_new, v, dn)
-                    changed = builder.and_(builder.fcmp_unordered("!=", dq, dn), _mask_of(builder, queued, v))
-                    with builder.if_then(builder.icmp_unsigned("!=", builder.bitcast(changed, ir.IntType(VEC)), none),
-                                         likely=False):
-                        free = builder.and_(builder.fcmp_ordered("==", nxt, _const(np.inf)),
-                                            builder.not_(_mask_of(builder, ringed, v)))
-                        simple = builder.and_(changed, free)
-                        late = builder.and_(changed, builder.not_(free))
-                        W.set_row(ROW_NEXT, v, builder.select(simple, builder.fadd(_splat(builder, t_now),
-                                                                                   W.row(ROW_TD, v)), nxt))
-                        W.set_row(ROW_NV, v, builder.select(simple, builder.fmul(dn, W.row(ROW_V, v)), W.row(ROW_NV, v)))
-                        busy.store(at, builder.zext(late, _B8), _B8, align=1)
-                        builder.store(builder.add(builder.load(waiting), _count(builder, late)), waiting)
-                    for r in range(3):
-                        o = builder.add(y, builder.add(builder.mul(stride, ir.Constant(_I64, r)), at))
-                        Yr.store(o, new[r], align=8 * VEC).set_metadata("nontemporal", nontemporal)
-                    out.store(builder.add(di, at), builder.fptosi(dn, _B8), _B8, align=1)
-        return builder.add(builder.load(deferred), builder.shl(builder.load(waiting), ir.Constant(_I64, 32)))
-
-    return sig, codegen
-
 
 @njit(cache=True)
 def guard_threshold(R: float, guard: float) -> float:
@@ -500,7 +93,7 @@ def _split_candidates(t, A, B, Td, undelayed, keys, gammas, n_split) -> None:
     """Fill every delayed set's split cache with Gamma(W - Td) for the spans W that can end its commands'
     steps (Td < W <= Td + a step), computed side by side (``phi_gamma_lanes``) before the loop.
 
-    A head start only: ``_land`` finds them there, and ``_split_slot``
+    A head start only: ``land`` finds them there, and ``_split_slot``
     computes any it misses (a key rounded the other way, a full cache) --
     the values are the same either way.
     """
@@ -535,18 +128,6 @@ def _split_candidates(t, A, B, Td, undelayed, keys, gammas, n_split) -> None:
         slot[q] += 1
 
 
-@intrinsic
-def _store_fence(typingctx):
-    """Order the non-temporal stores before anything after (they bypass the usual store ordering)."""
-    sig = types.void()
-
-    def codegen(context, builder, signature, args):
-        builder.fence("seq_cst")
-        return context.get_dummy_value()
-
-    return sig, codegen
-
-
 @njit(cache=True)
 def _work_rows() -> np.ndarray:
     """(WORK_ROWS, LANES) float64 whose rows start on cache lines (a block's vectors, loaded whole)."""
@@ -561,7 +142,7 @@ def _block_matrices(A, B, lengths, mp) -> np.ndarray:
     matrices are one contiguous run.  Lanes past the last set repeat it (their outputs are never read)."""
     m = A.shape[0]
     nlen = len(lengths)
-    P = np.empty((mp // LANES, nlen * 12 * LANES))
+    P = np.empty((mp // LANES, nlen * STEP_ENTRIES))
     flat = np.empty((12, m))
     sets = np.arange(m)
     for j in range(nlen):
@@ -625,7 +206,7 @@ def run_linear_lanes(t, A, B, R, guard, V, Td, x0, log, closed_loop, start, firs
     for b in range(blocks):
         _run_block(b, t, idx, P[b], A, B, R, guard, V, Td, x0, log, closed_loop, start, first, dir0, Y, dirs,
                    col0 + LANES * b, undelayed, W, own, queued, flags, queues, splits)
-    _store_fence()
+    store_fence()
 
 
 @njit(cache=True)
@@ -664,15 +245,15 @@ def _run_block(b, t, idx, Pb, A, B, R, guard, V, Td, x0, log, closed_loop, start
             _free_run(k, n, Pb, idx, W, d_old, Y, dirs, out, mp)
             return
         if k > 0:
-            _step(Pb, 12 * LANES * idx[k - 1], W, d_old)
+            step(Pb, STEP_ENTRIES * idx[k - 1], W, d_old)
             _decide_block(k, W, d_old, d_new, lo, R, guard, log, closed_loop, start, first, dir0)
-        _emit(Y, 3 * mp * k + out, mp, W, dirs, mp * k + out, d_new)
+        emit(Y, 3 * mp * k + out, mp, W, dirs, mp * k + out, d_new)
         d_old, d_new = d_new, d_old
 
 
 @njit(cache=True)
 def _decide_block(k, W, d_old, d_new, lo, R, guard, log, closed_loop, start, first, dir0) -> None:
-    """Every command of the block at sample k > 0 (``kernels.decide``; the sampled guard as ``_flip``)."""
+    """Every command of the block at sample k > 0 (``kernels.decide``; the sampled guard as ``flip``)."""
     m = len(R)
     if not closed_loop or k < start:
         for l in range(LANES):
@@ -683,17 +264,17 @@ def _decide_block(k, W, d_old, d_new, lo, R, guard, log, closed_loop, start, fir
             W[d_new, l] = decide(k, int(W[d_old, l]), W[ROW_DELTA, l] / R[q], guard[q], log, closed_loop,
                                  start, first, dir0)
     else:
-        _flip(W, d_old, d_new)
+        flip(W, d_old, d_new)
 
 
 @njit(cache=True)
 def _free_run(k0, n, Pb, idx, W, d_old, Y, dirs, out, mp) -> None:
     """Samples k0.. of a block with no queue, in closed loop past the controller's start: step, guard,
     outputs (to columns out ...)."""
-    stride = 12 * LANES
+    stride = STEP_ENTRIES
     d_new = ROW_D0 + ROW_D1 - d_old
     for k in range(k0, n):
-        _advance(Pb, stride * idx[k - 1], W, d_old, d_new, Y, 3 * mp * k + out, mp, dirs, mp * k + out)
+        advance(Pb, stride * idx[k - 1], W, d_old, d_new, Y, 3 * mp * k + out, mp, dirs, mp * k + out)
         d_old, d_new = d_new, d_old
 
 
@@ -706,7 +287,7 @@ def _queued_run(t, idx, Pb, A, B, R, guard, Td, log, closed_loop, start, first, 
     One command on its way per set is the rule (commands are many samples
     apart) and is handled in vector rows: past the controller's start in
     closed loop by one pass per sample (``_queued_free_run``), otherwise by
-    ``_step_motor``, ``_land``, the decision and ``_send``.  A set with more
+    ``step_motor``, ``land``, the decision and ``send``.  A set with more
     on their way moves to a ring (``arrive``, ``volts``; ``ringed``, its
     vector row then empty) handled here set by set, as is a split length a
     set's cache lacks.  Written out in one function: helpers taking these
@@ -751,7 +332,7 @@ def _queued_run(t, idx, Pb, A, B, R, guard, Td, log, closed_loop, start, first, 
                         W[ROW_I, l] += e0
                         W[ROW_W, l] += e1
                         W[ROW_DELTA, l] += e2
-                    dq = W[d_old, l]                    # ``_flip``, ``_send`` and ``_emit`` for this set
+                    dq = W[d_old, l]                    # ``flip``, ``send`` and ``emit`` for this set
                     dn = dq - 2.0 * dq * (dq * W[ROW_DELTA, l] >= W[ROW_THR, l])
                     W[d_new, l] = dn
                     if dn != dq and queued[l]:
@@ -774,11 +355,11 @@ def _queued_run(t, idx, Pb, A, B, R, guard, Td, log, closed_loop, start, first, 
             continue
         if k > 0:
             j = idx[k - 1]
-            _step_motor(Pb, 12 * LANES * j, W, d_old, own)
+            step_motor(Pb, STEP_ENTRIES * j, W, d_old, own)
             tk, t_next = t[k - 1], t[k]
             h = t_next - tk
             limit = t_next - TIME_EPS
-            missed = _land(W, Pb, 12 * LANES * j, BK, BG, tk, limit, h, flags)
+            missed = land(W, Pb, STEP_ENTRIES * j, BK, BG, used, tk, limit, h, flags)
             if missed or ring_next < limit:             # the rest, one set at a time
                 for l in range(LANES):
                     if not (flags[l] or ringed[l] and arrive[l, head[l]] < limit):
@@ -825,31 +406,31 @@ def _queued_run(t, idx, Pb, A, B, R, guard, Td, log, closed_loop, start, first, 
                         W[ROW_DELTA, l] += e2
                 ring_next = _ring_next(arrive, head, ringed)
             if closed_loop and k > start:
-                _flip(W, d_old, d_new)
+                flip(W, d_old, d_new)
             elif not closed_loop or k < start:
-                _fill(W, d_new, log[k])
+                fill(W, d_new, log[k])
             else:
                 _decide_block(k, W, d_old, d_new, lo, R, guard, log, closed_loop, start, first, dir0)
-        if _send(W, d_old, d_new, t[k], queued, ringed, flags):  # sets with a command already on its way
+        if send(W, d_old, d_new, t[k], queued, ringed, flags):  # sets with a command already on its way
             for l in range(LANES):
                 if flags[l]:
                     _to_ring(l, t[k] + Td[lo + l], W[d_new, l] * W[ROW_V, l], W, arrive, volts, head, count, ringed)
             ring_next = _ring_next(arrive, head, ringed)
-        _emit(Y, 3 * mp * k + out, mp, W, dirs, mp * k + out, d_new)
+        emit(Y, 3 * mp * k + out, mp, W, dirs, mp * k + out, d_new)
         k += 1
 
 
 @njit(cache=True)
 def _queued_free_run(k, n, t, idx, Pb, W, own, BK, BG, used, queued, ringed, Y, dirs, out, odd, busy, ring_next):
     """Samples k.. of a block with delayed sets, in closed loop past the controller's start, each in one pass
-    (``_advance_queued``) until one needs work set by set: returns that sample and its flags (0: a ring's
+    (``advance_queued``) until one needs work set by set: returns that sample and its flags (0: a ring's
     command lands there, not stepped yet), or n.  The rare paths are the caller's."""
     mp = Y.shape[2]
     while k < n:
         tk, t_next = t[k - 1], t[k]
         if ring_next < t_next - TIME_EPS:
             return k, 0
-        done = _advance_queued(Pb, 12 * LANES * idx[k - 1], W, ROW_D0 + (k & 1), ROW_D1 - (k & 1), own, BK, BG,
+        done = advance_queued(Pb, STEP_ENTRIES * idx[k - 1], W, ROW_D0 + (k & 1), ROW_D1 - (k & 1), own, BK, BG,
                                used, tk, t_next - TIME_EPS, t_next - tk, t_next, queued, ringed, Y, 3 * mp * k + out,
                                mp, dirs, mp * k + out, odd, busy)
         if done:
