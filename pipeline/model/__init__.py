@@ -14,7 +14,7 @@ import hashlib
 import os
 from pathlib import Path
 
-KERNEL_SOURCES = ("linear.py", "kernels.py", "block_ir.py", "lanes.py", "modal.py", "nonsmooth.py")
+KERNEL_SOURCES = ("simd.py", "linear.py", "kernels.py", "block_ir.py", "lanes.py", "modal.py", "nonsmooth.py")
 
 
 def drop_stale_jit_cache(here: Path = Path(__file__).resolve().parent) -> bool:

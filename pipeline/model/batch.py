@@ -11,8 +11,8 @@ loop or replay, with or without loop delay.
 The batch saves the ~21 us of Python around each single call (argument checks,
 kernel dispatch, result packaging); its own Python is one pass over the specs
 (``spec_columns``).  Its blocks of sets are shared out between threads, one
-per core by default (the kernel releases the GIL).  Non-smooth specs (Tc, gap) or the continuous guard fall
-back to a loop of ``simulate`` calls.
+per core by default (the kernel releases the GIL).  Non-smooth specs (Tc,
+gap) or the continuous guard fall back to a loop of ``simulate`` calls.
 """
 
 from __future__ import annotations
@@ -133,6 +133,8 @@ def _helpers(n: int) -> ThreadPoolExecutor:
     """
     global _pool
     if _pool is None or _pool[1] < n or _pool[2] != os.getpid():
+        if _pool is not None and _pool[2] == os.getpid():
+            _pool[0].shutdown(wait=False)              # outgrown: its idle threads end
         _pool = (ThreadPoolExecutor(max_workers=n, thread_name_prefix="pdr-lanes"), n, os.getpid())
     return _pool[0]
 

@@ -2,7 +2,7 @@
 
 A block is ``LANES`` sets whose numbers sit in rows of a work array ``W``
 (one row per quantity, ``ROW_*``), eight sets to an AVX-512 register
-(``VEC``).  Each intrinsic below is a loop over the block's vectors written
+(``simd.VEC``).  Each intrinsic below is a loop over the block's vectors written
 out at compile time; the per-vector pieces (``_step_vector``, ``_flip_vector``,
 ``_land_vector``, ``_send_vector``, ``_emit_state``, ``_emit_command``) are shared, so the
 one-pass intrinsics (``advance``, ``advance_queued``) do exactly what the
@@ -23,9 +23,8 @@ from numba.extending import intrinsic
 from numba.np.arrayobj import make_array
 
 from pipeline.model.kernels import TIME_EPS
+from pipeline.model.simd import V8 as _V8, VEC, const as _const, splat as _splat
 
-# Sets per vector: one AVX-512 register of float64, a 64-byte cache line.
-VEC = 8
 # Sets per block: their matrices (2 lengths: 12 kB) and state stay in L1; their output rows are long enough
 # to stream.
 LANES = 64
@@ -39,21 +38,9 @@ MAX_SPLITS = 8
 STEP_ENTRIES = 12 * LANES
 
 _I64 = ir.IntType(64)
-_V8 = ir.VectorType(ir.DoubleType(), VEC)
 _B8 = ir.VectorType(ir.IntType(8), VEC)
 _M8 = ir.VectorType(ir.IntType(1), VEC)
 _NONE = ir.Constant(_B8, [0] * VEC)
-
-
-def _const(x: float):
-    return ir.Constant(_V8, [x] * VEC)
-
-
-def _splat(b, x):
-    """An eight-lane vector of the scalar value x."""
-    v = b.insert_element(ir.Constant(_V8, ir.Undefined), x, ir.Constant(ir.IntType(32), 0))
-    return b.shuffle_vector(v, ir.Constant(_V8, ir.Undefined), ir.Constant(ir.VectorType(ir.IntType(32), VEC),
-                                                                       [0] * VEC))
 
 
 def _index(b, base, offset: int):
@@ -89,9 +76,9 @@ class _Rows:
         """Lanes of vector v whose byte (a uint8 array) is non-zero."""
         return self.b.icmp_unsigned("!=", self.load(ir.Constant(_I64, VEC * v), _B8), _NONE)
 
-    def flag(self, v: int, mask, value: int = 1):
-        """Bytes of vector v: ``value`` where ``mask``, else 0."""
-        x = self.b.select(mask, ir.Constant(_B8, [value] * VEC), _NONE)
+    def flag(self, v: int, mask):
+        """Bytes of vector v: 1 where ``mask``, else 0."""
+        x = self.b.zext(mask, _B8)
         self.store(ir.Constant(_I64, VEC * v), x, _B8, align=1)
 
     def row(self, row, v: int):

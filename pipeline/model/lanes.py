@@ -89,19 +89,16 @@ def _window_sums(t, longest) -> np.ndarray:
 
 
 @njit(cache=True)
-def _split_candidates(t, A, B, Td, undelayed, keys, gammas, n_split) -> None:
+def _split_candidates(t, A, B, Td, undelayed, longest, BK, BG, bn) -> None:
     """Fill every delayed set's split cache with Gamma(W - Td) for the spans W that can end its commands'
     steps (Td < W <= Td + a step), computed side by side (``phi_gamma_lanes``) before the loop.
 
-    A head start only: ``land`` finds them there, and ``_split_slot``
-    computes any it misses (a key rounded the other way, a full cache) --
-    the values are the same either way.
+    The caches are laid out per block as ``land`` reads them: BK (block, slot x LANES + lane) keys, NaN
+    where empty; BG (block, (3 slot + row) x LANES + lane) Gammas; bn (block, lane) entries.  A head
+    start only: ``_split_slot`` computes any length missed (a key rounded the other way, a full cache)
+    -- the values are the same either way.
     """
     m = len(Td)
-    longest = 0.0
-    for q in range(m):
-        if not undelayed[q]:
-            longest = max(longest, Td[q])
     sums = _window_sums(t, longest)
     hmax = 0.0
     for k in range(len(t) - 1):
@@ -112,11 +109,12 @@ def _split_candidates(t, A, B, Td, undelayed, keys, gammas, n_split) -> None:
     for q in range(m):
         if undelayed[q]:
             continue
+        blk, l = q // LANES, q % LANES
         for w in sums:
-            if Td[q] + TIME_EPS < w <= Td[q] + hmax + TIME_EPS and n_split[q] < MAX_SPLITS:
+            if Td[q] + TIME_EPS < w <= Td[q] + hmax + TIME_EPS and bn[blk, l] < MAX_SPLITS:
                 key = step_key(w - Td[q])
-                keys[q, n_split[q]] = key
-                n_split[q] += 1
+                BK[blk, bn[blk, l] * LANES + l] = key
+                bn[blk, l] += 1
                 sets[count], lengths[count] = q, key
                 count += 1
     out = np.empty((12, count))
@@ -124,7 +122,9 @@ def _split_candidates(t, A, B, Td, undelayed, keys, gammas, n_split) -> None:
     slot = np.zeros(m, dtype=np.int64)
     for i in range(count):
         q = sets[i]
-        gammas[q, slot[q], 0], gammas[q, slot[q], 1], gammas[q, slot[q], 2] = out[9, i], out[10, i], out[11, i]
+        blk, l, c = q // LANES, q % LANES, slot[q]
+        BG[blk, (3 * c) * LANES + l], BG[blk, (3 * c + 1) * LANES + l], BG[blk, (3 * c + 2) * LANES + l] = (
+            out[9, i], out[10, i], out[11, i])
         slot[q] += 1
 
 
@@ -155,13 +155,9 @@ def _block_matrices(A, B, lengths, mp) -> np.ndarray:
 
 
 @njit(cache=True)
-def _queue_capacity(t, Td, undelayed) -> int:
-    """The most commands one set can have on their way at once (+1): those decided within Td before a
-    sample, for the longest delay of the batch."""
-    longest = 0.0
-    for q in range(len(Td)):
-        if not undelayed[q]:
-            longest = max(longest, Td[q])
+def _queue_capacity(t, longest) -> int:
+    """The most commands one set can have on their way at once (+1): those decided within ``longest``, the
+    batch's longest loop delay, before a sample."""
     most, j = 1, 0
     for k in range(len(t)):
         while t[j] < t[k] - longest - 1e-6:          # generous: rounding may keep one more a while
@@ -172,12 +168,14 @@ def _queue_capacity(t, Td, undelayed) -> int:
 
 @njit(cache=True, nogil=True)
 def run_linear_lanes(t, A, B, R, guard, V, Td, x0, log, closed_loop, start, first, dir0, Y, dirs, col0) -> None:
-    """The automaton for m sets, LANES at a time: fills Y = (current, omega, delta) (n, 3, mp), dirs (n, mp).
+    """The automaton for m sets, LANES at a time: fills columns col0 .. col0 + m of Y = (current, omega,
+    delta) (n, 3, mp) and dirs (n, mp), from ``lane_outputs``.
 
     A (m, 3, 3), B (m, 3); R, guard, V, Td (m,); the other arguments as
-    ``kernels.run_linear_batch``.  mp is m rounded up to whole blocks (the
-    columns past m are scratch) and Y must start on a cache line
-    (``lane_outputs``).  theta = delta / R is left to the caller.
+    ``kernels.run_linear_batch``.  col0 is a multiple of LANES and the columns
+    past the last set, up to a whole block, are scratch.  Releases the GIL:
+    threads may fill disjoint columns (``batch``).  theta = delta / R is left
+    to the caller.
     """
     n, m = len(t), len(R)
     mp = Y.shape[2]
@@ -188,30 +186,33 @@ def run_linear_lanes(t, A, B, R, guard, V, Td, x0, log, closed_loop, start, firs
     lengths, idx = step_lengths(t)
     P = _block_matrices(A, B, lengths, LANES * blocks)
     undelayed = np.empty(m, dtype=np.bool_)
+    longest = 0.0                                       # the longest loop delay
     for q in range(m):
         undelayed[q] = closed_loop and Td[q] == 0.0
-    keys, gammas, n_split = np.empty((m, MAX_SPLITS)), np.empty((m, MAX_SPLITS, 3)), np.zeros(m, dtype=np.int64)
+        if not undelayed[q]:
+            longest = max(longest, Td[q])
+    BK = np.full((blocks, MAX_SPLITS * LANES), np.nan)   # the blocks' split caches (``_split_candidates``)
+    BG = np.zeros((blocks, 3 * MAX_SPLITS * LANES))
+    bn = np.zeros((blocks, LANES), dtype=np.int64)
     if not undelayed.all():
-        _split_candidates(t, A, B, Td, undelayed, keys, gammas, n_split)
-    cap = _queue_capacity(t, Td, undelayed)
+        _split_candidates(t, A, B, Td, undelayed, longest, BK, BG, bn)
+    cap = _queue_capacity(t, longest)
     queues = (np.empty((LANES, cap)), np.empty((LANES, cap)), np.zeros(LANES, dtype=np.int64),
               np.zeros(LANES, dtype=np.int64), np.zeros(LANES, dtype=np.uint8), np.zeros(LANES, dtype=np.uint8))
-    # a block's split caches: keys (slot, lane), Gammas (slot, row, lane), entries per lane, scratch
-    splits = (keys, gammas, n_split, np.empty(MAX_SPLITS * LANES), np.empty(3 * MAX_SPLITS * LANES),
-              np.zeros(LANES, dtype=np.int64), np.empty(12))
+    G = np.empty(12)
     W = _work_rows()
     own = np.empty(LANES, dtype=np.uint8)               # 1: the set's command acts at once (no queue)
     queued = np.empty(LANES, dtype=np.uint8)            # its complement
     flags = np.zeros(LANES, dtype=np.uint8)
     for b in range(blocks):
         _run_block(b, t, idx, P[b], A, B, R, guard, V, Td, x0, log, closed_loop, start, first, dir0, Y, dirs,
-                   col0 + LANES * b, undelayed, W, own, queued, flags, queues, splits)
+                   col0 + LANES * b, undelayed, W, own, queued, flags, queues, BK[b], BG[b], bn[b], G)
     store_fence()
 
 
 @njit(cache=True)
 def _run_block(b, t, idx, Pb, A, B, R, guard, V, Td, x0, log, closed_loop, start, first, dir0, Y, dirs,
-               out, undelayed, W, own, queued, flags, queues, splits) -> None:
+               out, undelayed, W, own, queued, flags, queues, BK, BG, bn, G) -> None:
     """Block b (sets LANES b ..., output columns out ...) through every sample."""
     n, m, mp = len(t), len(R), Y.shape[2]
     lo = LANES * b
@@ -224,31 +225,29 @@ def _run_block(b, t, idx, Pb, A, B, R, guard, V, Td, x0, log, closed_loop, start
         own[l] = 1 if undelayed[q] or lo + l >= m else 0      # padding lanes: no queue
         queued[l] = 1 - own[l]
         n_queued += queued[l]
-        W[ROW_D1, l] = decide(0, 0, x0[2] / R[q], guard[q], log, closed_loop, start, first, dir0)
+        W[_command_rows(0)[1], l] = decide(0, 0, x0[2] / R[q], guard[q], log, closed_loop, start, first, dir0)
     if n_queued:
         arrive, volts, head, count, ringed, busy = queues
-        keys, gammas, n_split, BK, BG, bn, G = splits
-        for l in range(LANES):                          # the block's split caches (empty slots: NaN keys)
-            q = min(lo + l, m - 1)
-            bn[l] = n_split[q] if queued[l] else 0
+        for l in range(LANES):
             head[l] = count[l] = ringed[l] = 0
-            for c in range(MAX_SPLITS):
-                BK[c * LANES + l] = keys[q, c] if c < bn[l] else np.nan
-                for r in range(3):
-                    BG[(3 * c + r) * LANES + l] = gammas[q, c, r] if c < bn[l] else 0.0
         _queued_run(t, idx, Pb, A, B, R, guard, Td, log, closed_loop, start, first, dir0, Y, dirs, lo, out, W, own,
                     queued, flags, busy, arrive, volts, head, count, ringed, BK, BG, bn, G)
         return
-    d_old, d_new = ROW_D0, ROW_D1
     for k in range(n):
         if closed_loop and k > start:                   # nothing left but the sampled guard
-            _free_run(k, n, Pb, idx, W, d_old, Y, dirs, out, mp)
+            _free_run(k, n, Pb, idx, W, Y, dirs, out, mp)
             return
+        d_old, d_new = _command_rows(k)
         if k > 0:
             step(Pb, STEP_ENTRIES * idx[k - 1], W, d_old)
             _decide_block(k, W, d_old, d_new, lo, R, guard, log, closed_loop, start, first, dir0)
         emit(Y, 3 * mp * k + out, mp, W, dirs, mp * k + out, d_new)
-        d_old, d_new = d_new, d_old
+
+
+@njit(cache=True, inline="always")
+def _command_rows(k):
+    """The work rows of the command before and at sample k (they alternate)."""
+    return ROW_D0 + (k & 1), ROW_D1 - (k & 1)
 
 
 @njit(cache=True)
@@ -256,8 +255,7 @@ def _decide_block(k, W, d_old, d_new, lo, R, guard, log, closed_loop, start, fir
     """Every command of the block at sample k > 0 (``kernels.decide``; the sampled guard as ``flip``)."""
     m = len(R)
     if not closed_loop or k < start:
-        for l in range(LANES):
-            W[d_new, l] = log[k]
+        fill(W, d_new, log[k])
     elif k == start:
         for l in range(LANES):
             q = min(lo + l, m - 1)
@@ -268,14 +266,12 @@ def _decide_block(k, W, d_old, d_new, lo, R, guard, log, closed_loop, start, fir
 
 
 @njit(cache=True)
-def _free_run(k0, n, Pb, idx, W, d_old, Y, dirs, out, mp) -> None:
+def _free_run(k0, n, Pb, idx, W, Y, dirs, out, mp) -> None:
     """Samples k0.. of a block with no queue, in closed loop past the controller's start: step, guard,
     outputs (to columns out ...)."""
-    stride = STEP_ENTRIES
-    d_new = ROW_D0 + ROW_D1 - d_old
     for k in range(k0, n):
-        advance(Pb, stride * idx[k - 1], W, d_old, d_new, Y, 3 * mp * k + out, mp, dirs, mp * k + out)
-        d_old, d_new = d_new, d_old
+        d_old, d_new = _command_rows(k)
+        advance(Pb, STEP_ENTRIES * idx[k - 1], W, d_old, d_new, Y, 3 * mp * k + out, mp, dirs, mp * k + out)
 
 
 @njit(cache=True)
@@ -296,7 +292,7 @@ def _queued_run(t, idx, Pb, A, B, R, guard, Td, log, closed_loop, start, first, 
     n, mp = len(t), Y.shape[2]
     cap = arrive.shape[1]
     for l in range(LANES):
-        W[ROW_D0, l] = np.nan                           # at sample 0 every delayed set sends its command
+        W[_command_rows(0)[0], l] = np.nan              # at sample 0 every delayed set sends its command
     ring_next = np.inf                                  # earliest arrival in the rings
     used = 0                                            # split cache slots any set has filled
     for l in range(LANES):
@@ -311,7 +307,7 @@ def _queued_run(t, idx, Pb, A, B, R, guard, Td, log, closed_loop, start, first, 
                 break
         else:
             done = 0
-        d_old, d_new = ROW_D0 + (k & 1), ROW_D1 - (k & 1)   # the command rows alternate
+        d_old, d_new = _command_rows(k)
         if done:                                        # sample k is stepped but needs work set by set
             j = idx[k - 1]
             tk, t_next = t[k - 1], t[k]
@@ -319,19 +315,8 @@ def _queued_run(t, idx, Pb, A, B, R, guard, Td, log, closed_loop, start, first, 
                 for l in range(LANES):
                     if not odd[l]:
                         continue
-                    if odd[l] == 1:                     # its command lands (as below)
-                        du = W[ROW_NV, l] - W[ROW_U, l]
-                        W[ROW_U, l] = W[ROW_NV, l]
-                        a = W[ROW_NEXT, l] - tk
-                        W[ROW_NEXT, l] = np.inf
-                        s = _split_slot(l, lo + l, step_key((t_next - tk) - a), A, B, BK, BG, bn, G)
-                        used = max(used, s + 1)
-                        e0 = 0.0 + BG[(3 * s) * LANES + l] * du
-                        e1 = 0.0 + BG[(3 * s + 1) * LANES + l] * du
-                        e2 = 0.0 + BG[(3 * s + 2) * LANES + l] * du
-                        W[ROW_I, l] += e0
-                        W[ROW_W, l] += e1
-                        W[ROW_DELTA, l] += e2
+                    if odd[l] == 1:                     # its command lands, its split length computed
+                        used = max(used, _land_missed(l, lo + l, tk, t_next - tk, A, B, W, BK, BG, bn, G) + 1)
                     dq = W[d_old, l]                    # ``flip``, ``send`` and ``emit`` for this set
                     dn = dq - 2.0 * dq * (dq * W[ROW_DELTA, l] >= W[ROW_THR, l])
                     W[d_new, l] = dn
@@ -365,9 +350,9 @@ def _queued_run(t, idx, Pb, A, B, R, guard, Td, log, closed_loop, start, first, 
                     if not (flags[l] or ringed[l] and arrive[l, head[l]] < limit):
                         continue
                     q = lo + l
-                    e0 = e1 = e2 = 0.0
-                    moved = False
                     if ringed[l]:
+                        e0 = e1 = e2 = 0.0
+                        moved = False
                         c = head[l]
                         while count[l] > 0 and arrive[l, c] < limit:
                             du = volts[l, c] - W[ROW_U, l]
@@ -389,21 +374,12 @@ def _queued_run(t, idx, Pb, A, B, R, guard, Td, log, closed_loop, start, first, 
                                     e2 += BG[(3 * s + 2) * LANES + l] * du
                         head[l] = c
                         ringed[l] = count[l] > 0        # empty: back to the vector rows
+                        if moved:
+                            W[ROW_I, l] += e0
+                            W[ROW_W, l] += e1
+                            W[ROW_DELTA, l] += e2
                     else:                               # one command, a split length not in the cache
-                        du = W[ROW_NV, l] - W[ROW_U, l]
-                        W[ROW_U, l] = W[ROW_NV, l]
-                        a = W[ROW_NEXT, l] - tk
-                        W[ROW_NEXT, l] = np.inf
-                        moved = True
-                        s = _split_slot(l, q, step_key(h - a), A, B, BK, BG, bn, G)
-                        used = max(used, s + 1)
-                        e0 += BG[(3 * s) * LANES + l] * du
-                        e1 += BG[(3 * s + 1) * LANES + l] * du
-                        e2 += BG[(3 * s + 2) * LANES + l] * du
-                    if moved:
-                        W[ROW_I, l] += e0
-                        W[ROW_W, l] += e1
-                        W[ROW_DELTA, l] += e2
+                        used = max(used, _land_missed(l, q, tk, h, A, B, W, BK, BG, bn, G) + 1)
                 ring_next = _ring_next(arrive, head, ringed)
             if closed_loop and k > start:
                 flip(W, d_old, d_new)
@@ -430,9 +406,10 @@ def _queued_free_run(k, n, t, idx, Pb, W, own, BK, BG, used, queued, ringed, Y, 
         tk, t_next = t[k - 1], t[k]
         if ring_next < t_next - TIME_EPS:
             return k, 0
-        done = advance_queued(Pb, STEP_ENTRIES * idx[k - 1], W, ROW_D0 + (k & 1), ROW_D1 - (k & 1), own, BK, BG,
-                               used, tk, t_next - TIME_EPS, t_next - tk, t_next, queued, ringed, Y, 3 * mp * k + out,
-                               mp, dirs, mp * k + out, odd, busy)
+        d_old, d_new = _command_rows(k)
+        done = advance_queued(Pb, STEP_ENTRIES * idx[k - 1], W, d_old, d_new, own, BK, BG, used, tk,
+                              t_next - TIME_EPS, t_next - tk, t_next, queued, ringed, Y, 3 * mp * k + out, mp, dirs,
+                              mp * k + out, odd, busy)
         if done:
             return k, done
         k += 1
@@ -464,6 +441,21 @@ def _ring_next(arrive, head, ringed) -> float:
         if ringed[l]:
             soonest = min(soonest, arrive[l, head[l]])
     return soonest
+
+
+@njit(cache=True)
+def _land_missed(l, q, tk, h, A, B, W, BK, BG, bn, G) -> int:
+    """Set l's command on its way (vector rows) lands in the step from tk (length h) with a split length its
+    cache lacks: ``land``'s arithmetic, one set, the Gamma computed (``_split_slot``); returns its slot."""
+    du = W[ROW_NV, l] - W[ROW_U, l]
+    W[ROW_U, l] = W[ROW_NV, l]
+    a = W[ROW_NEXT, l] - tk
+    W[ROW_NEXT, l] = np.inf
+    s = _split_slot(l, q, step_key(h - a), A, B, BK, BG, bn, G)
+    W[ROW_I, l] += 0.0 + BG[(3 * s) * LANES + l] * du
+    W[ROW_W, l] += 0.0 + BG[(3 * s + 1) * LANES + l] * du
+    W[ROW_DELTA, l] += 0.0 + BG[(3 * s + 2) * LANES + l] * du
+    return s
 
 
 @njit(cache=True)

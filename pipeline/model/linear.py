@@ -25,6 +25,8 @@ from numba.core import cgutils
 from numba.extending import intrinsic
 from numba.np.arrayobj import make_array
 
+from pipeline.model.simd import V8, VEC, Lanes, splat
+
 # Lengths closer than this share a cache entry: millis() spacing differences carry
 # ~1e-15 s of float noise, far below any physical effect.
 KEY_DECIMALS = 12
@@ -129,9 +131,9 @@ def phi_gamma_lanes(A: np.ndarray, B: np.ndarray, sets: np.ndarray, h: np.ndarra
                     W[(3 * r + col) * LANE_CHUNK + i] = A[q, r, col] * hs
                 W[(9 + r) * LANE_CHUNK + i] = B[q, r] * hs
             W[24 * LANE_CHUNK + i] = s
-        for i0 in range(0, w, LANE_VEC):                # eight lanes at a time, in registers
+        for i0 in range(0, w, VEC):                     # eight lanes at a time, in registers
             smax = 0
-            for i in range(i0, min(i0 + LANE_VEC, w)):
+            for i in range(i0, min(i0 + VEC, w)):
                 smax = max(smax, int(W[24 * LANE_CHUNK + i]))
             _expm_lanes(W, i0, smax)
         for i in range(w):
@@ -139,19 +141,15 @@ def phi_gamma_lanes(A: np.ndarray, B: np.ndarray, sets: np.ndarray, h: np.ndarra
                 out[e, c0 + i] = W[(12 + e) * LANE_CHUNK + i]
 
 
-# Lanes per vector register (AVX-512, float64).
-LANE_VEC = 8
-_V = ir.VectorType(ir.DoubleType(), LANE_VEC)
-
-
 @intrinsic
 def _expm_lanes(typingctx, W, i0, smax):
     """Lanes i0..i0+7 of ``phi_gamma_lanes``' rows: P = I, g = 0, the twelve Horner steps of ``_horner``,
     then ``_square`` while a lane needs more squarings (row 24; the others keep theirs by a select).
 
-    LLVM vector code with the 24 numbers of eight lanes in registers (a
-    loop over lanes reloaded them at every step); each lane's operations and
-    their order are ``_horner``'s and ``_square``'s, so the same bits.
+    LLVM vector code with the 24 numbers of eight lanes in registers (a loop
+    over lanes reloaded them at every step), emitted by ``_horner`` and
+    ``_square`` themselves on ``simd.Lanes``: the same operations in the same
+    order per lane, so the same bits.
     """
     sig = types.void(W, types.intp, types.intp)
 
@@ -161,40 +159,24 @@ def _expm_lanes(typingctx, W, i0, smax):
 
         def ptr(row):
             at = builder.add(i0, ir.Constant(ir.IntType(64), row * LANE_CHUNK))
-            return builder.bitcast(builder.gep(data, [at]), _V.as_pointer())
+            return builder.bitcast(builder.gep(data, [at]), V8.as_pointer())
 
-        def const(v):
-            return ir.Constant(_V, [v] * LANE_VEC)
+        def lanes(values):
+            return tuple(Lanes(builder, v) for v in values)
 
-        mul, add = builder.fmul, builder.fadd
-        x = [builder.load(ptr(r), align=8) for r in range(9)]
-        b = [builder.load(ptr(9 + r), align=8) for r in range(3)]
+        x = lanes(builder.load(ptr(r), align=8) for r in range(9))
+        b = lanes(builder.load(ptr(9 + r), align=8) for r in range(3))
+        p, g = lanes(1.0 if i in (0, 4, 8) else 0.0 for i in range(9)), lanes([0.0] * 3)
+        for j in range(12, 0, -1):
+            p, g = _horner.py_func(x, b, p, g, Lanes(builder, 1.0 / j))
         squarings = builder.load(ptr(24), align=8)
-        p = [const(1.0 if i in (0, 4, 8) else 0.0) for i in range(9)]
-        g = [const(0.0)] * 3
-        for j in range(12, 0, -1):                  # _horner: P <- I + X P r, g <- (X g + b) r
-            r = const(1.0 / j)
-            rows = [add(add(mul(x[3 * i], p[c]), mul(x[3 * i + 1], p[3 + c])), mul(x[3 * i + 2], p[6 + c]))
-                    for i in range(3) for c in range(3)]
-            p = [add(const(1.0), mul(rows[e], r)) if e in (0, 4, 8) else mul(rows[e], r) for e in range(9)]
-            g = [mul(add(add(add(mul(x[3 * i], g[0]), mul(x[3 * i + 1], g[1])), mul(x[3 * i + 2], g[2])), b[i]), r)
-                 for i in range(3)]
-        cells = [cgutils.alloca_once_value(builder, v) for v in p + g]
-        with cgutils.for_range(builder, smax) as loop:   # _square, where the lane needs squaring number k
+        cells = [cgutils.alloca_once_value(builder, v.v) for v in p + g]
+        with cgutils.for_range(builder, smax) as loop:   # squaring number k where the lane needs it
             cur = [builder.load(c) for c in cells]
-            q, h = cur[:9], cur[9:]
-            sq = [add(add(mul(q[3 * i], q[c]), mul(q[3 * i + 1], q[3 + c])), mul(q[3 * i + 2], q[6 + c]))
-                  for i in range(3) for c in range(3)]
-            sg = [add(add(add(mul(q[3 * i], h[0]), mul(q[3 * i + 1], h[1])), mul(q[3 * i + 2], h[2])), h[i])
-                  for i in range(3)]
-            k = builder.sitofp(loop.index, ir.DoubleType())
-            kv = builder.shuffle_vector(builder.insert_element(ir.Constant(_V, ir.Undefined), k,
-                                                               ir.Constant(ir.IntType(32), 0)),
-                                        ir.Constant(_V, ir.Undefined),
-                                        ir.Constant(ir.VectorType(ir.IntType(32), LANE_VEC), [0] * LANE_VEC))
-            use = builder.fcmp_ordered("<", kv, squarings)
-            for c, new, old in zip(cells, sq + sg, cur):
-                builder.store(builder.select(use, new, old), c)
+            p2, g2 = _square.py_func(lanes(cur[:9]), lanes(cur[9:]))
+            use = builder.fcmp_ordered("<", splat(builder, builder.sitofp(loop.index, ir.DoubleType())), squarings)
+            for c, new, old in zip(cells, p2 + g2, cur):
+                builder.store(builder.select(use, new.v, old), c)
         for e, c in enumerate(cells):
             builder.store(builder.load(c), ptr(12 + e), align=8)
         return context.get_dummy_value()
