@@ -80,8 +80,9 @@ def simulate_batch(specs: Sequence[PlantSpec], t: np.ndarray | None = None, *, d
     with a loop delay runs ~1.8x faster on two cores; without one, the
     outputs' memory bandwidth is the limit and two cores gain little.
     """
-    if threads is not None and threads < 1:
-        raise PdrError(f"expected at least one thread, got {threads}", key="threads")
+    if threads is not None and (not isinstance(threads, (int, np.integer)) or isinstance(threads, bool)
+                                or threads < 1):
+        raise PdrError(f"expected a whole number of threads, at least 1, got {threads!r}", key="threads")
     specs = list(specs)
     if not specs:
         raise PdrError("expected at least one parameter set", key="specs")

@@ -217,7 +217,8 @@ def test_a_dropped_result_leaves_its_memory_to_the_next_batch():
 
 
 def test_the_result_does_not_depend_on_the_threads():
-    # each thread takes whole blocks of 64 sets and writes its own output columns
+    # each thread takes whole blocks of 64 sets and writes its own output columns; a thread count that is
+    # not a whole number of at least 1 is refused by name
     sets = _linear_sets(n=200, seed=19)
     specs = [replace(s, Td=td) for s, td in zip(sets, np.tile([0.0, 0.03, 0.07, 0.0, 0.13], 40))]
     one = simulate_batch(specs, T, threads=1)
@@ -227,5 +228,6 @@ def test_the_result_does_not_depend_on_the_threads():
         many = simulate_batch(specs, T, threads=threads)
         assert np.array_equal(many.omega, omega) and np.array_equal(many.delta, delta)
         assert np.array_equal(many.dir, dirs)
-    with pytest.raises(PdrError, match="threads"):
-        simulate_batch(specs, T, threads=0)
+    for bad in (0, -2, 1.5, "2", True):
+        with pytest.raises(PdrError, match="threads"):
+            simulate_batch(specs, T, threads=bad)
