@@ -121,9 +121,9 @@ def _step_vector(b, P, W, p, v: int, d_row, own=None, on_row=None):
 
 
 def _flip_vector(b, W, v: int, dq, delta):
-    """The sampled guard: d - 2 d [d delta >= threshold] (exact for d = +-1)."""
-    flag = b.uitofp(b.fcmp_ordered(">=", b.fmul(dq, delta), W.row(ROW_THR, v)), _V8)
-    return b.fsub(dq, b.fmul(b.fmul(_const(2.0), dq), flag))
+    """The sampled guard: -d where d delta >= threshold, else d (a select: the command is +-1 here)."""
+    flag = b.fcmp_ordered(">=", b.fmul(dq, delta), W.row(ROW_THR, v))
+    return b.select(flag, b.fneg(dq), dq)
 
 
 def _land_vector(b, W, P, BK, BG, p, v: int, state, tk, limit, h, used):
@@ -173,20 +173,23 @@ def _land_vector(b, W, P, BK, BG, p, v: int, state, tk, limit, h, used):
 def _send_vector(b, W, v: int, dq, dn, t_now, queued, ringed, late):
     """The commands decided at t_now: a delayed set whose command changed and has none on its way gets it in
     rows ROW_NEXT (t_now + Td) and ROW_NV (d V volts), as ``kernels._delayed`` files it.  Changed sets that
-    already have one on their way (or a ring) are the scalar ring's: ``late(mask)`` is called with them, in
-    the branch only changes take; returns how many."""
+    already have one on their way (or a ring) are the scalar ring's: ``late(mask)`` is called with them
+    (often none); returns how many.
+
+    No branch: whether a vector's command changed is known only at the end of
+    its step's chain, and about one vector-sample in five has a change, so a
+    branch on it was mispredicted often and late -- ~15 % of a delayed
+    batch (interleaved A/B) against a few selects and stores.
+    """
     changed = b.and_(b.fcmp_unordered("!=", dq, dn), queued.mask(v))
-    count = cgutils.alloca_once_value(b, ir.Constant(_I64, 0))
-    with b.if_then(_any(b, changed), likely=False):
-        nxt = W.row(ROW_NEXT, v)
-        free = b.and_(b.fcmp_ordered("==", nxt, _const(np.inf)), b.not_(ringed.mask(v)))
-        simple = b.and_(changed, free)
-        W.set_row(ROW_NEXT, v, b.select(simple, b.fadd(_splat(b, t_now), W.row(ROW_TD, v)), nxt))
-        W.set_row(ROW_NV, v, b.select(simple, b.fmul(dn, W.row(ROW_V, v)), W.row(ROW_NV, v)))
-        busy = b.and_(changed, b.not_(free))
-        late(busy)
-        b.store(_count(b, busy), count)
-    return b.load(count)
+    nxt = W.row(ROW_NEXT, v)
+    free = b.and_(b.fcmp_ordered("==", nxt, _const(np.inf)), b.not_(ringed.mask(v)))
+    simple = b.and_(changed, free)
+    W.set_row(ROW_NEXT, v, b.select(simple, b.fadd(_splat(b, t_now), W.row(ROW_TD, v)), nxt))
+    W.set_row(ROW_NV, v, b.select(simple, b.fmul(dn, W.row(ROW_V, v)), W.row(ROW_NV, v)))
+    busy = b.and_(changed, b.not_(free))
+    late(busy)
+    return _count(b, busy)
 
 
 def _emit_row(b, Y, y, stride, v: int, r: int, x):
@@ -284,7 +287,6 @@ def send(typingctx, W, d_old, d_new, t_now, queued, ringed, flags):
         W, queued, ringed, flags = _rows(context, b, signature, args, 0, 4, 5, 6)
         count = ir.Constant(_I64, 0)
         for v in range(LANES // VEC):
-            flags.flag(v, ir.Constant(_M8, [0] * VEC))
             count = b.add(count, _send_vector(b, W, v, W.row(args[1], v), W.row(args[2], v), args[3], queued, ringed,
                                               lambda busy, v=v: flags.flag(v, busy)))
         return count
@@ -332,8 +334,9 @@ def advance_queued(typingctx, P, p, W, d_old, d_new, own, BK, BG, used, tk, limi
     the guard and flagged in ``odd`` (1 for that set, 2 for the others of its
     vector): the caller lands that set and finishes the vector one set at a
     time.  Sets whose new command finds one on its way are flagged in
-    ``busy`` for the ring.  Only raised flags are written: the caller clears
-    them.  Returns flagged vectors + 2^32 x busy sets.
+    ``busy`` for the ring (every vector sent from writes its bytes; ``odd``
+    is written only where raised).  The caller clears the flags it handles.
+    Returns flagged vectors + 2^32 x busy sets.
     """
     def codegen(context, b, signature, args):
         P, W, own, BK, BG, queued, ringed, Y, dirs, odd, busy = _rows(context, b, signature, args,
