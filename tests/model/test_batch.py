@@ -67,6 +67,17 @@ def test_nonsmooth_sets_fall_back_to_single_calls():
     _equal(simulate_batch(specs, T, guard="continuous"), [simulate(s, T, guard="continuous") for s in specs])
 
 
+@pytest.mark.parametrize("where", [5, 120])
+def test_one_nonsmooth_set_in_any_threads_share_sends_the_batch_to_single_calls(where):
+    # three blocks over two threads: a Coulomb set in either thread's share sends the whole batch down the
+    # single-call path
+    specs = _linear_sets(n=130, seed=4)
+    specs[where] = replace(specs[where], Tc=6e-4)
+    batch = simulate_batch(specs, T, threads=2)
+    _equal(batch, [simulate(s, T) for s in specs])
+    assert batch.I0[where] == specs[where].I0 and batch.v_drive[-1] == specs[-1].v_drive
+
+
 def test_empty_batch_is_refused():
     with pytest.raises(PdrError, match="specs"):
         simulate_batch([], T)
