@@ -77,8 +77,10 @@ def simulate_batch(specs: Sequence[PlantSpec], t: np.ndarray | None = None, *, d
     ``threads``: how many threads share the linear sets (default: every core
     this process may use); each takes whole blocks of 64 sets and writes its
     own columns, so the results do not depend on it.  A batch of 1000 sets
-    with a loop delay runs ~1.7x faster on two cores; without one, the
-    outputs' memory bandwidth is the limit and two cores gain little.
+    with a loop delay runs ~1.5x faster on two idle cores; without one, the
+    outputs' memory bandwidth is the limit and two cores gain little.  The
+    blocks are split evenly, so when the other cores are busy a thread waits
+    for one and ``threads=1`` is faster.
     """
     if threads is not None and (not isinstance(threads, (int, np.integer)) or isinstance(threads, bool)
                                 or threads < 1):
