@@ -143,23 +143,21 @@ def _helpers(n: int) -> ThreadPoolExecutor:
 
 
 def _run_lanes(columns: np.ndarray, plan, x0: np.ndarray, threads: int) -> BatchResult:
-    """Every set through the compiled automaton, side by side (``lanes.run_linear_lanes``), the blocks of sets
-    shared out between ``threads`` threads (disjoint output columns)."""
+    """Every set through the compiled automaton, side by side (``lanes.run_linear_lanes``), by ``threads``
+    threads that claim its blocks of sets one at a time (disjoint output columns)."""
     A, B = state_matrices_of(*columns[:len(MATRIX_PARAMS)])
     m, n = columns.shape[1], len(plan.t)
     Y, dirs = lane_outputs(m, n)
-    blocks = -(-m // LANES)
-    parts = max(1, min(threads, blocks))
-    bounds = [LANES * (blocks * i // parts) for i in range(parts)] + [m]
+    next_block = np.zeros(3, dtype=np.int64)           # blocks claimed, from the front, from the back
     R, guard, V, Td = columns[ROW_R], columns[ROW_GUARD], columns[ROW_V_DRIVE], columns[ROW_TD]
 
-    def run(i: int) -> None:
-        s = slice(bounds[i], bounds[i + 1])
-        run_linear_lanes(plan.t, A[s], B[s], R[s], guard[s], V[s], Td[s], x0, plan.log, plan.closed_loop,
-                         plan.start, plan.first, plan.dir0, Y, dirs, bounds[i])
+    def run(from_front: bool) -> None:
+        run_linear_lanes(plan.t, A, B, R, guard, V, Td, x0, plan.log, plan.closed_loop, plan.start, plan.first,
+                         plan.dir0, Y, dirs, next_block, from_front)
 
-    others = [_helpers(parts - 1).submit(run, i) for i in range(1, parts)]
-    run(0)
+    helpers = min(threads, -(-m // LANES)) - 1
+    others = [_helpers(helpers).submit(run, i % 2 == 1) for i in range(helpers)]
+    run(True)
     for f in others:
         f.result()
     return BatchResult(t=plan.t, omega=Y[:, 1, :m].T, current=Y[:, 0, :m].T, delta=Y[:, 2, :m].T, dir=dirs[:, :m].T,

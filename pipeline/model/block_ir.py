@@ -372,6 +372,16 @@ def advance_queued(typingctx, P, p, W, d_old, d_new, own, BK, BG, used, tk, limi
 
 
 @intrinsic
+def claim(typingctx, counters, i):
+    """counters[i] += 1, atomically; returns the value before (threads sharing the counters each get their
+    own numbers)."""
+    def codegen(context, b, signature, args):
+        (counters,) = _rows(context, b, signature, args, 0)
+        return b.atomic_rmw("add", b.gep(counters.data, [args[1]]), ir.Constant(_I64, 1), "monotonic")
+    return types.int64(counters, types.intp), codegen
+
+
+@intrinsic
 def store_fence(typingctx):
     """Order the non-temporal stores before anything after (they bypass the usual store ordering)."""
     def codegen(context, b, signature, args):

@@ -40,7 +40,8 @@ from numba import njit
 
 from pipeline.model.block_ir import (LANES, MAX_SPLITS, ROW_D0, ROW_D1, ROW_DELTA, ROW_I, ROW_NEXT, ROW_NV, ROW_TD,
                                      ROW_THR, ROW_U, ROW_V, ROW_W, STEP_ENTRIES, VEC, WORK_ROWS, advance,
-                                     advance_queued, emit, fill, flip, land, send, step, step_motor, store_fence)
+                                     advance_queued, claim, emit, fill, flip, land, send, step, step_motor,
+                                     store_fence)
 from pipeline.model.kernels import TIME_EPS, decide
 from pipeline.model.linear import phi_gamma_into, phi_gamma_lanes, step_key, step_lengths
 
@@ -89,69 +90,84 @@ def _window_sums(t, longest) -> np.ndarray:
 
 
 @njit(cache=True)
-def _split_candidates(t, A, B, Td, undelayed, longest, BK, BG, bn) -> None:
-    """Fill every delayed set's split cache with Gamma(W - Td) for the spans W that can end its commands'
-    steps (Td < W <= Td + a step), computed side by side (``phi_gamma_lanes``) before the loop.
+def _split_candidates(t, A, B, Td, undelayed, lo, sums, hmax, BK, BG, bn) -> None:
+    """Fill the split caches of block lo.. (its delayed sets) with Gamma(W - Td) for the spans W in ``sums``
+    (``_window_sums``) that can end their commands' steps (Td < W <= Td + hmax, the longest step),
+    computed side by side (``phi_gamma_lanes``) before the block runs.
 
-    The caches are laid out per block as ``land`` reads them: BK (block, slot x LANES + lane) keys, NaN
-    where empty; BG (block, (3 slot + row) x LANES + lane) Gammas; bn (block, lane) entries.  A head
-    start only: ``_split_slot`` computes any length missed (a key rounded the other way, a full cache)
-    -- the values are the same either way.
+    The caches are laid out as ``land`` reads them: BK (slot x LANES + lane)
+    keys, NaN where empty; BG ((3 slot + row) x LANES + lane) Gammas; bn
+    (lane) entries.  A head start only: ``_split_slot`` computes any length
+    missed (a key rounded the other way, a full cache) -- the values are the
+    same either way.
     """
     m = len(Td)
-    sums = _window_sums(t, longest)
-    hmax = 0.0
-    for k in range(len(t) - 1):
-        hmax = max(hmax, t[k + 1] - t[k])
-    sets = np.empty(m * MAX_SPLITS, dtype=np.int64)
-    lengths = np.empty(m * MAX_SPLITS)
+    BK[:] = np.nan
+    bn[:] = 0
+    sets = np.empty(LANES * MAX_SPLITS, dtype=np.int64)
+    lengths = np.empty(LANES * MAX_SPLITS)
     count = 0
-    for q in range(m):
+    for l in range(min(LANES, m - lo)):
+        q = lo + l
         if undelayed[q]:
             continue
-        blk, l = q // LANES, q % LANES
         for w in sums:
-            if Td[q] + TIME_EPS < w <= Td[q] + hmax + TIME_EPS and bn[blk, l] < MAX_SPLITS:
+            if Td[q] + TIME_EPS < w <= Td[q] + hmax + TIME_EPS and bn[l] < MAX_SPLITS:
                 key = step_key(w - Td[q])
-                BK[blk, bn[blk, l] * LANES + l] = key
-                bn[blk, l] += 1
+                BK[bn[l] * LANES + l] = key
+                bn[l] += 1
                 sets[count], lengths[count] = q, key
                 count += 1
     out = np.empty((12, count))
     phi_gamma_lanes(A, B, sets[:count], lengths[:count], out)
-    slot = np.zeros(m, dtype=np.int64)
+    slot = np.zeros(LANES, dtype=np.int64)
     for i in range(count):
-        q = sets[i]
-        blk, l, c = q // LANES, q % LANES, slot[q]
-        BG[blk, (3 * c) * LANES + l], BG[blk, (3 * c + 1) * LANES + l], BG[blk, (3 * c + 2) * LANES + l] = (
+        l = sets[i] - lo
+        c = slot[l]
+        BG[(3 * c) * LANES + l], BG[(3 * c + 1) * LANES + l], BG[(3 * c + 2) * LANES + l] = (
             out[9, i], out[10, i], out[11, i])
-        slot[q] += 1
+        slot[l] += 1
 
 
 @njit(cache=True)
-def _work_rows() -> np.ndarray:
-    """(WORK_ROWS, LANES) float64 whose rows start on cache lines (a block's vectors, loaded whole)."""
-    buf = np.empty(LANES * WORK_ROWS + VEC)
-    off = ((-buf.ctypes.data) % (8 * VEC)) // 8
-    return buf[off:off + LANES * WORK_ROWS].reshape(WORK_ROWS, LANES)
+def _lines(size, y) -> np.ndarray:
+    """float64 (size,) for a block's rows of eight-set vectors: starting on a cache line (a vector then loads
+    whole), two lines past the output address y modulo 4 KiB.
+
+    A load whose address has a recent store's low 12 bits waits for it (4K
+    aliasing): a vector's outputs are stored just before the next vector
+    loads its rows, which are 512 bytes apart, so their phase against the
+    outputs' matters.  Measured, one thread, delayed batch: rows one line
+    before the outputs' phase 1.5 ms, two lines past it 1.09 ms; numba's
+    allocations are 32-byte aligned, so the phase used to be a draw.
+    """
+    buf = np.empty(size + 4096 // 8)
+    off = ((y + 2 * 64 - buf.ctypes.data) % 4096) // 8
+    return buf[off:off + size]
 
 
 @njit(cache=True)
-def _block_matrices(A, B, lengths, mp) -> np.ndarray:
-    """(Phi, Gamma) of every set for every distinct length, laid out (block, length, entry, lane): a block's
-    matrices are one contiguous run.  Lanes past the last set repeat it (their outputs are never read)."""
-    m = A.shape[0]
-    nlen = len(lengths)
-    P = np.empty((mp // LANES, nlen * STEP_ENTRIES))
-    flat = np.empty((12, m))
-    sets = np.arange(m)
+def _work_rows(y) -> np.ndarray:
+    """(WORK_ROWS, LANES) float64 whose rows are placed by ``_lines``."""
+    return _lines(LANES * WORK_ROWS, y).reshape(WORK_ROWS, LANES)
+
+
+@njit(cache=True)
+def _block_matrices(A, B, lengths, lo, Pb) -> None:
+    """(Phi, Gamma) of block lo..'s sets for every distinct length into Pb, laid out (length, entry, lane).
+    Lanes past the last set repeat it (their outputs are never read)."""
+    m, nlen = A.shape[0], len(lengths)
+    sets = np.empty(nlen * LANES, dtype=np.int64)
+    h = np.empty(nlen * LANES)
     for j in range(nlen):
-        phi_gamma_lanes(A, B, sets, np.full(m, lengths[j]), flat)
-        for q in range(mp):
-            src = min(q, m - 1)
-            for e in range(12):
-                P[q // LANES, (12 * j + e) * LANES + q % LANES] = flat[e, src]
-    return P
+        for l in range(LANES):
+            sets[j * LANES + l], h[j * LANES + l] = min(lo + l, m - 1), lengths[j]
+    flat = np.empty((12, nlen * LANES))
+    phi_gamma_lanes(A, B, sets, h, flat)
+    for j in range(nlen):
+        for e in range(12):
+            for l in range(LANES):
+                Pb[(12 * j + e) * LANES + l] = flat[e, j * LANES + l]
 
 
 @njit(cache=True)
@@ -167,46 +183,59 @@ def _queue_capacity(t, longest) -> int:
 
 
 @njit(cache=True, nogil=True)
-def run_linear_lanes(t, A, B, R, guard, V, Td, x0, log, closed_loop, start, first, dir0, Y, dirs, col0) -> None:
-    """The automaton for m sets, LANES at a time: fills columns col0 .. col0 + m of Y = (current, omega,
-    delta) (n, 3, mp) and dirs (n, mp), from ``lane_outputs``.
+def run_linear_lanes(t, A, B, R, guard, V, Td, x0, log, closed_loop, start, first, dir0, Y, dirs, next_block,
+                     from_front) -> None:
+    """The automaton for m sets, LANES at a time: fills Y = (current, omega, delta) (n, 3, mp) and dirs
+    (n, mp), from ``lane_outputs`` (the columns past the last set, up to a whole block, are scratch).
 
     A (m, 3, 3), B (m, 3); R, guard, V, Td (m,); the other arguments as
-    ``kernels.run_linear_batch``.  col0 is a multiple of LANES and the columns
-    past the last set, up to a whole block, are scratch.  Releases the GIL:
-    threads may fill disjoint columns (``batch``).  theta = delta / R is left
-    to the caller.
+    ``kernels.run_linear_batch``.  Releases the GIL: threads sharing one
+    ``next_block`` (int64[3], zeros: blocks claimed, from the front, from
+    the back) run one batch together.  Each claims the next block left at
+    its end (``from_front`` or the back: each thread's outputs stay
+    contiguous; blocks dealt alternately measured 7 % slower on two) and
+    computes that block's step matrices and split caches itself, so a
+    thread that starts late, or runs on a busy core, takes fewer blocks.
+    theta = delta / R is left to the caller.
     """
     n, m = len(t), len(R)
     mp = Y.shape[2]
     blocks = -(-m // LANES)
-    if (mp % LANES != 0 or col0 % LANES != 0 or col0 + LANES * blocks > mp or Y.ctypes.data % (8 * VEC) != 0
-            or dirs.shape[1] != mp):
-        raise ValueError("Y, dirs must be lane_outputs(...) with room for the sets from column col0")
+    if (mp % LANES != 0 or LANES * blocks > mp or Y.ctypes.data % (8 * VEC) != 0 or dirs.shape[1] != mp
+            or len(next_block) != 3):
+        raise ValueError("Y, dirs must be lane_outputs(...) for the sets and next_block three counters")
     lengths, idx = step_lengths(t)
-    P = _block_matrices(A, B, lengths, LANES * blocks)
     undelayed = np.empty(m, dtype=np.bool_)
     longest = 0.0                                       # the longest loop delay
     for q in range(m):
         undelayed[q] = closed_loop and Td[q] == 0.0
         if not undelayed[q]:
             longest = max(longest, Td[q])
-    BK = np.full((blocks, MAX_SPLITS * LANES), np.nan)   # the blocks' split caches (``_split_candidates``)
-    BG = np.zeros((blocks, 3 * MAX_SPLITS * LANES))
-    bn = np.zeros((blocks, LANES), dtype=np.int64)
-    if not undelayed.all():
-        _split_candidates(t, A, B, Td, undelayed, longest, BK, BG, bn)
+    sums = _window_sums(t, longest)
+    hmax = 0.0
+    for k in range(n - 1):
+        hmax = max(hmax, t[k + 1] - t[k])
+    y = Y.ctypes.data
+    Pb = _lines(len(lengths) * STEP_ENTRIES, y)         # the block's step matrices (``_block_matrices``)
+    BK = _lines(MAX_SPLITS * LANES, y)                  # its split caches (``_split_candidates``)
+    BG = _lines(3 * MAX_SPLITS * LANES, y)
+    bn = np.zeros(LANES, dtype=np.int64)
     cap = _queue_capacity(t, longest)
     queues = (np.empty((LANES, cap)), np.empty((LANES, cap)), np.zeros(LANES, dtype=np.int64),
               np.zeros(LANES, dtype=np.int64), np.zeros(LANES, dtype=np.uint8), np.zeros(LANES, dtype=np.uint8))
     G = np.empty(12)
-    W = _work_rows()
+    W = _work_rows(y)
     own = np.empty(LANES, dtype=np.uint8)               # 1: the set's command acts at once (no queue)
     queued = np.empty(LANES, dtype=np.uint8)            # its complement
     flags = np.zeros(LANES, dtype=np.uint8)
-    for b in range(blocks):
-        _run_block(b, t, idx, P[b], A, B, R, guard, V, Td, x0, log, closed_loop, start, first, dir0, Y, dirs,
-                   col0 + LANES * b, undelayed, W, own, queued, flags, queues, BK[b], BG[b], bn[b], G)
+    while claim(next_block, 0) < blocks:               # a block is left: the next from this thread's end
+        b = claim(next_block, 1) if from_front else blocks - 1 - claim(next_block, 2)
+        lo = LANES * b
+        _block_matrices(A, B, lengths, lo, Pb)
+        if not undelayed[lo:lo + LANES].all():
+            _split_candidates(t, A, B, Td, undelayed, lo, sums, hmax, BK, BG, bn)
+        _run_block(b, t, idx, Pb, A, B, R, guard, V, Td, x0, log, closed_loop, start, first, dir0, Y, dirs,
+                   lo, undelayed, W, own, queued, flags, queues, BK, BG, bn, G)
     store_fence()
 
 
