@@ -242,3 +242,36 @@ def test_the_result_does_not_depend_on_the_threads():
     for bad in (0, -2, 1.5, "2", True):
         with pytest.raises(PdrError, match="threads"):
             simulate_batch(specs, T, threads=bad)
+
+
+def _lanes_call(specs, Y, dirs, counters, from_front):
+    from pipeline.model.batch import ROW_GUARD, ROW_R, ROW_TD, ROW_V_DRIVE
+    from pipeline.model.lanes import run_linear_lanes
+    from pipeline.model.simulate import _plan
+    columns = spec_columns(specs)
+    A, B = state_matrices_of(*columns[:9])
+    plan = _plan(specs[0], T, 24.95, 1, None, True, "sampled")
+    run_linear_lanes(plan.t, A, B, columns[ROW_R], columns[ROW_GUARD], columns[ROW_V_DRIVE], columns[ROW_TD],
+                     np.zeros(3), plan.log, plan.closed_loop, plan.start, plan.first, plan.dir0, Y, dirs, counters,
+                     from_front)
+
+
+def test_a_thread_takes_only_the_blocks_left_from_its_end():
+    # threads share three counters (claimed, from the front, from the back): one thread alone from either end
+    # runs every block the same; one arriving when all are claimed writes nothing.  150 sets: 3 blocks, and
+    # each thread's last look at the claimed counter also counts
+    from pipeline.model.lanes import lane_outputs
+    specs = [replace(s, Td=td) for s, td in zip(_linear_sets(n=150, seed=23), np.tile([0.0, 0.05, 0.11], 50))]
+    results = []
+    for from_front in (True, False):
+        Y, dirs = lane_outputs(len(specs), len(T))
+        counters = np.zeros(3, dtype=np.int64)
+        _lanes_call(specs, Y, dirs, counters, from_front)
+        assert counters[0] == 4 and counters[1 if from_front else 2] == 3 and counters[2 if from_front else 1] == 0
+        results.append((Y[:, :, :150].copy(), dirs[:, :150].copy()))
+    assert np.array_equal(results[0][0], results[1][0]) and np.array_equal(results[0][1], results[1][1])
+    assert np.array_equal(results[0][0][:, 2, :].T, simulate_batch(specs, T, threads=1).delta)
+    Y, dirs = lane_outputs(len(specs), len(T))
+    Y[:] = np.nan
+    _lanes_call(specs, Y, dirs, np.array([3, 2, 1]), True)
+    assert np.isnan(Y).all()
