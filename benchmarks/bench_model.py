@@ -40,7 +40,7 @@ import numpy as np
 
 from benchmarks.bench_rig import best_of
 from pipeline.config import default_config
-from pipeline.model.batch import simulate_batch, usable_cores
+from pipeline.model.batch import idle_cores, simulate_batch
 from pipeline.model.compile import compile_kernels
 from pipeline.model.effects import (Backlash, CoulombFriction, CurrentSensorOffset, DriverVoltageDrop, LoopDelay,
                                     RackInertia, SpringStiffness, ViscousFriction, build_spec)
@@ -109,11 +109,12 @@ def bench_batch(t: np.ndarray, n: int = 1000) -> list[float]:
         start = time.perf_counter()
         simulate_batch(specs, t, **kw)
         lone = time.perf_counter() - start
+        idle = idle_cores()
         batch = best_of(batches, repeat=3) / BATCH_LOOP
         one_thread = best_of(lambda: batches(1), repeat=3) / BATCH_LOOP
         ratio = single / batch
         print(_line(f"{n} x simulate ({tag})", single))
-        print(_line(f"simulate_batch ({tag}), {usable_cores()} threads", batch, ratio, 20))
+        print(_line(f"simulate_batch ({tag}), default ({idle} idle cores)", batch, ratio, 20))
         print(_line("  on one thread", one_thread, single / one_thread))
         print(_line("  its first call after the single calls", lone, single / lone))
         ratios.append(ratio)

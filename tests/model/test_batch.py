@@ -275,3 +275,21 @@ def test_a_thread_takes_only_the_blocks_left_from_its_end():
     Y[:] = np.nan
     _lanes_call(specs, Y, dirs, np.array([3, 2, 1]), True)
     assert np.isnan(Y).all()
+
+
+def test_the_default_threads_leave_out_a_core_another_task_is_running_on():
+    # idle_cores counts the runnable tasks (/proc/loadavg): this test's own thread and a busy process
+    import subprocess
+    import sys
+    import time
+
+    from pipeline.model.batch import idle_cores, usable_cores
+    cores = usable_cores()
+    assert 1 <= idle_cores() <= cores
+    busy = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+    try:
+        time.sleep(0.2)
+        assert idle_cores() <= max(1, cores - 1)
+    finally:
+        busy.kill()
+        busy.wait()
