@@ -10,8 +10,8 @@ loop or replay, with or without loop delay.
 
 The batch saves the ~21 us of Python around each single call (argument checks,
 kernel dispatch, result packaging); its own Python is one pass over the specs
-(``spec_columns``).  Its blocks of sets are shared out between threads, one
-per core by default (the kernel releases the GIL).  Non-smooth specs (Tc,
+(``spec_columns``).  Its blocks of sets are shared between threads, one per
+idle core by default (the kernel releases the GIL; ``idle_cores``).  Non-smooth specs (Tc,
 gap) or the continuous guard fall back to a loop of ``simulate`` calls.
 """
 

@@ -23,7 +23,10 @@ the samples before the next block starts:
   leave, as whole 64-byte lines by non-temporal stores, right after it is
   computed, so the 12.5 MB of 1000 sets x 500 samples stream out while the
   arithmetic goes on (writing them after each step, or with ordinary stores
-  that read every line first, cost as much again).
+  that read every line first, cost as much again);
+- a block's rows sit at a fixed offset from the outputs' address modulo
+  4 KiB (``_lines``), and threads claim whole blocks from either end of the
+  batch (``run_linear_lanes``).
 
 Per set the operations and their order are those of ``kernels`` (the common
 part is the first four terms of its sum, the correction the fifth), so a batch
