@@ -18,7 +18,7 @@ right after other work runs up to ~50 % slower on this shared VM (caches and
 clock cold; a 30 ms sleep before it does the same), which the 1000-call loop
 of the other side amortises.  That lone first call is printed too, and the
 batch on one thread (by default it shares its blocks of sets between the
-cores; the single calls cannot).  The compiled kernels (numba) are
+idle cores; the single calls cannot).  The compiled kernels (numba) are
 warmed first (``pipeline.model.compile.compile_kernels``: one call of every compiled path), so no ratio
 includes a JIT compile or a load from numba's cache; those one-off costs are
 reported separately on the first line.  Both sides of every ratio are the

@@ -170,7 +170,7 @@ def _land_vector(b, W, P, BK, BG, p, v: int, state, tk, limit, h, used):
     return b.load(missing)
 
 
-def _send_vector(b, W, v: int, dq, dn, t_now, queued, ringed, late):
+def _send_vector(b, W, v: int, dq, dn, t_now, own, ringed, late):
     """The commands decided at t_now: a delayed set whose command changed and has none on its way gets it in
     rows ROW_NEXT (t_now + Td) and ROW_NV (d V volts), as ``kernels._delayed`` files it.  Changed sets that
     already have one on their way (or a ring) are the scalar ring's: ``late(mask)`` is called with them
@@ -181,7 +181,7 @@ def _send_vector(b, W, v: int, dq, dn, t_now, queued, ringed, late):
     branch on it was mispredicted often and late -- ~15 % of a delayed
     batch (interleaved A/B) against a few selects and stores.
     """
-    changed = b.and_(b.fcmp_unordered("!=", dq, dn), queued.mask(v))
+    changed = b.and_(b.fcmp_unordered("!=", dq, dn), b.not_(own.mask(v)))   # own 0: a set with a queue
     nxt = W.row(ROW_NEXT, v)
     free = b.and_(b.fcmp_ordered("==", nxt, _const(np.inf)), b.not_(ringed.mask(v)))
     simple = b.and_(changed, free)
@@ -281,21 +281,21 @@ def land(typingctx, W, P, p, BK, BG, used, tk, limit, h, flags):
 
 
 @intrinsic
-def send(typingctx, W, d_old, d_new, t_now, queued, ringed, flags):
+def send(typingctx, W, d_old, d_new, t_now, own, ringed, flags):
     """``_send_vector`` for the block; flags[l] = 1 where set l's command goes to the ring; returns how many."""
     def codegen(context, b, signature, args):
-        W, queued, ringed, flags = _rows(context, b, signature, args, 0, 4, 5, 6)
+        W, own, ringed, flags = _rows(context, b, signature, args, 0, 4, 5, 6)
         count = ir.Constant(_I64, 0)
         for v in range(LANES // VEC):
-            count = b.add(count, _send_vector(b, W, v, W.row(args[1], v), W.row(args[2], v), args[3], queued, ringed,
+            count = b.add(count, _send_vector(b, W, v, W.row(args[1], v), W.row(args[2], v), args[3], own, ringed,
                                               lambda busy, v=v: flags.flag(v, busy)))
         return count
-    return types.int64(W, types.intp, types.intp, types.float64, queued, ringed, flags), codegen
+    return types.int64(W, types.intp, types.intp, types.float64, own, ringed, flags), codegen
 
 
 @intrinsic
 def emit(typingctx, Y, y, stride, W, dirs, di, d_row):
-    """The block's sample outputs (``_emit_vector``) from its work rows."""
+    """The block's sample outputs (``_emit_state``, ``_emit_command``) from its work rows."""
     def codegen(context, b, signature, args):
         Y, W, dirs = _rows(context, b, signature, args, 0, 3, 4)
         for v in range(LANES // VEC):
@@ -325,8 +325,8 @@ def advance(typingctx, P, p, W, d_old, d_new, Y, y, stride, dirs, di):
 
 
 @intrinsic
-def advance_queued(typingctx, P, p, W, d_old, d_new, own, BK, BG, used, tk, limit, h, t_now, queued, ringed, Y, y,
-                   stride, dirs, di, odd, busy):
+def advance_queued(typingctx, P, p, W, d_old, d_new, own, BK, BG, used, tk, limit, h, t_now, ringed, Y, y, stride,
+                   dirs, di, odd, busy):
     """A block with delayed sets one sample on, in closed loop past the controller's start, in one pass over
     its vectors: ``step_motor``, ``land``, ``flip``, ``send`` and ``emit``.
 
@@ -339,10 +339,10 @@ def advance_queued(typingctx, P, p, W, d_old, d_new, own, BK, BG, used, tk, limi
     Returns flagged vectors + 2^32 x busy sets.
     """
     def codegen(context, b, signature, args):
-        P, W, own, BK, BG, queued, ringed, Y, dirs, odd, busy = _rows(context, b, signature, args,
-                                                                      0, 2, 5, 6, 7, 13, 14, 15, 18, 20, 21)
+        P, W, own, BK, BG, ringed, Y, dirs, odd, busy = _rows(context, b, signature, args,
+                                                              0, 2, 5, 6, 7, 13, 14, 17, 19, 20)
         p, d_old, d_new, used, tk, limit, h, t_now, y, stride, di = (args[i] for i in
-                                                                     (1, 3, 4, 8, 9, 10, 11, 12, 16, 17, 19))
+                                                                     (1, 3, 4, 8, 9, 10, 11, 12, 15, 16, 18))
         deferred = cgutils.alloca_once_value(b, ir.Constant(_I64, 0))
         waiting = cgutils.alloca_once_value(b, ir.Constant(_I64, 0))
         for v in range(LANES // VEC):
@@ -360,13 +360,13 @@ def advance_queued(typingctx, P, p, W, d_old, d_new, own, BK, BG, used, tk, limi
                 with usual:
                     dn = _flip_vector(b, W, v, dq, new[2])
                     W.set_row(d_new, v, dn)
-                    late = _send_vector(b, W, v, dq, dn, t_now, queued, ringed, lambda m, v=v: busy.flag(v, m))
+                    late = _send_vector(b, W, v, dq, dn, t_now, own, ringed, lambda m, v=v: busy.flag(v, m))
                     b.store(b.add(b.load(waiting), late), waiting)
                     _emit_state(b, Y, y, stride, v, new)
                     _emit_command(b, dirs, di, v, dn)
         return b.add(b.load(deferred), b.shl(b.load(waiting), ir.Constant(_I64, 32)))
     sig = types.int64(P, types.intp, W, types.intp, types.intp, own, BK, BG, types.intp, types.float64,
-                      types.float64, types.float64, types.float64, queued, ringed, Y, types.intp, types.intp, dirs,
+                      types.float64, types.float64, types.float64, ringed, Y, types.intp, types.intp, dirs,
                       types.intp, odd, busy)
     return sig, codegen
 

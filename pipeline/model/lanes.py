@@ -158,19 +158,19 @@ def _work_rows(y) -> np.ndarray:
 @njit(cache=True)
 def _block_matrices(A, B, lengths, lo, Pb) -> None:
     """(Phi, Gamma) of block lo..'s sets for every distinct length into Pb, laid out (length, entry, lane).
-    Lanes past the last set repeat it (their outputs are never read)."""
-    m, nlen = A.shape[0], len(lengths)
-    sets = np.empty(nlen * LANES, dtype=np.int64)
-    h = np.empty(nlen * LANES)
+    Lanes past the last set copy it (their outputs are never read)."""
+    nlen, w = len(lengths), min(LANES, A.shape[0] - lo)
+    sets = np.empty(nlen * w, dtype=np.int64)
+    h = np.empty(nlen * w)
     for j in range(nlen):
-        for l in range(LANES):
-            sets[j * LANES + l], h[j * LANES + l] = min(lo + l, m - 1), lengths[j]
-    flat = np.empty((12, nlen * LANES))
+        for l in range(w):
+            sets[j * w + l], h[j * w + l] = lo + l, lengths[j]
+    flat = np.empty((12, nlen * w))
     phi_gamma_lanes(A, B, sets, h, flat)
     for j in range(nlen):
         for e in range(12):
             for l in range(LANES):
-                Pb[(12 * j + e) * LANES + l] = flat[e, j * LANES + l]
+                Pb[(12 * j + e) * LANES + l] = flat[e, j * w + min(l, w - 1)]
 
 
 @njit(cache=True)
@@ -228,26 +228,21 @@ def run_linear_lanes(t, A, B, R, guard, V, Td, x0, log, closed_loop, start, firs
               np.zeros(LANES, dtype=np.int64), np.zeros(LANES, dtype=np.uint8), np.zeros(LANES, dtype=np.uint8))
     G = np.empty(12)
     W = _work_rows(y)
-    own = np.empty(LANES, dtype=np.uint8)               # 1: the set's command acts at once (no queue)
-    queued = np.empty(LANES, dtype=np.uint8)            # its complement
+    own = np.empty(LANES, dtype=np.uint8)               # 1: the set's command acts at once (0: it has a queue)
     flags = np.zeros(LANES, dtype=np.uint8)
     while claim(next_block, 0) < blocks:               # a block is left: the next from this thread's end
         b = claim(next_block, 1) if from_front else blocks - 1 - claim(next_block, 2)
-        lo = LANES * b
-        _block_matrices(A, B, lengths, lo, Pb)
-        if not undelayed[lo:lo + LANES].all():
-            _split_candidates(t, A, B, Td, undelayed, lo, sums, hmax, BK, BG, bn)
-        _run_block(b, t, idx, Pb, A, B, R, guard, V, Td, x0, log, closed_loop, start, first, dir0, Y, dirs,
-                   lo, undelayed, W, own, queued, flags, queues, BK, BG, bn, G)
+        _block_matrices(A, B, lengths, LANES * b, Pb)
+        _run_block(LANES * b, t, idx, Pb, A, B, R, guard, V, Td, x0, log, closed_loop, start, first, dir0, Y, dirs,
+                   undelayed, sums, hmax, W, own, flags, queues, BK, BG, bn, G)
     store_fence()
 
 
 @njit(cache=True)
-def _run_block(b, t, idx, Pb, A, B, R, guard, V, Td, x0, log, closed_loop, start, first, dir0, Y, dirs,
-               out, undelayed, W, own, queued, flags, queues, BK, BG, bn, G) -> None:
-    """Block b (sets LANES b ..., output columns out ...) through every sample."""
+def _run_block(lo, t, idx, Pb, A, B, R, guard, V, Td, x0, log, closed_loop, start, first, dir0, Y, dirs,
+               undelayed, sums, hmax, W, own, flags, queues, BK, BG, bn, G) -> None:
+    """The block of sets lo ... (output columns lo ...) through every sample."""
     n, m, mp = len(t), len(R), Y.shape[2]
-    lo = LANES * b
     n_queued = 0
     for l in range(LANES):
         q = min(lo + l, m - 1)
@@ -255,25 +250,25 @@ def _run_block(b, t, idx, Pb, A, B, R, guard, V, Td, x0, log, closed_loop, start
         W[ROW_U, l], W[ROW_V, l], W[ROW_THR, l] = 0.0, V[q], guard_threshold(R[q], guard[q])
         W[ROW_TD, l], W[ROW_NEXT, l], W[ROW_NV, l] = Td[q], np.inf, 0.0
         own[l] = 1 if undelayed[q] or lo + l >= m else 0      # padding lanes: no queue
-        queued[l] = 1 - own[l]
-        n_queued += queued[l]
+        n_queued += 1 - own[l]
         W[_command_rows(0)[1], l] = decide(0, 0, x0[2] / R[q], guard[q], log, closed_loop, start, first, dir0)
     if n_queued:
+        _split_candidates(t, A, B, Td, undelayed, lo, sums, hmax, BK, BG, bn)
         arrive, volts, head, count, ringed, busy = queues
         for l in range(LANES):
             head[l] = count[l] = ringed[l] = 0
-        _queued_run(t, idx, Pb, A, B, R, guard, Td, log, closed_loop, start, first, dir0, Y, dirs, lo, out, W, own,
-                    queued, flags, busy, arrive, volts, head, count, ringed, BK, BG, bn, G)
+        _queued_run(t, idx, Pb, A, B, R, guard, Td, log, closed_loop, start, first, dir0, Y, dirs, lo, W, own,
+                    flags, busy, arrive, volts, head, count, ringed, BK, BG, bn, G)
         return
     for k in range(n):
         if closed_loop and k > start:                   # nothing left but the sampled guard
-            _free_run(k, n, Pb, idx, W, Y, dirs, out, mp)
+            _free_run(k, n, Pb, idx, W, Y, dirs, lo, mp)
             return
         d_old, d_new = _command_rows(k)
         if k > 0:
             step(Pb, STEP_ENTRIES * idx[k - 1], W, d_old)
             _decide_block(k, W, d_old, d_new, lo, R, guard, log, closed_loop, start, first, dir0)
-        emit(Y, 3 * mp * k + out, mp, W, dirs, mp * k + out, d_new)
+        emit(Y, 3 * mp * k + lo, mp, W, dirs, mp * k + lo, d_new)
 
 
 @njit(cache=True, inline="always")
@@ -307,8 +302,8 @@ def _free_run(k0, n, Pb, idx, W, Y, dirs, out, mp) -> None:
 
 
 @njit(cache=True)
-def _queued_run(t, idx, Pb, A, B, R, guard, Td, log, closed_loop, start, first, dir0, Y, dirs, lo, out, W, own,
-                queued, flags, busy, arrive, volts, head, count, ringed, BK, BG, bn, G) -> None:
+def _queued_run(t, idx, Pb, A, B, R, guard, Td, log, closed_loop, start, first, dir0, Y, dirs, lo, W, own,
+                flags, busy, arrive, volts, head, count, ringed, BK, BG, bn, G) -> None:
     """A block with delayed sets through every sample: their commands travel Td and land inside the step they
     reach the motor in (``kernels._delayed``'s queue).
 
@@ -333,8 +328,8 @@ def _queued_run(t, idx, Pb, A, B, R, guard, Td, log, closed_loop, start, first, 
     k = 0
     while k < n:
         if closed_loop and k > start:                   # the usual samples: one pass each (``_queued_free_run``)
-            k, done = _queued_free_run(k, n, t, idx, Pb, W, own, BK, BG, used, queued, ringed, Y, dirs, out, odd,
-                                       busy, ring_next)
+            k, done = _queued_free_run(k, n, t, idx, Pb, W, own, BK, BG, used, ringed, Y, dirs, lo, odd, busy,
+                                       ring_next)
             if k == n:
                 break
         else:
@@ -350,16 +345,16 @@ def _queued_run(t, idx, Pb, A, B, R, guard, Td, log, closed_loop, start, first, 
                     if odd[l] == 1:                     # its command lands, its split length computed
                         used = max(used, _land_missed(l, lo + l, tk, t_next - tk, A, B, W, BK, BG, bn, G) + 1)
                     dq = W[d_old, l]                    # ``flip``, ``send`` and ``emit`` for this set
-                    dn = dq - 2.0 * dq * (dq * W[ROW_DELTA, l] >= W[ROW_THR, l])
+                    dn = -dq if dq * W[ROW_DELTA, l] >= W[ROW_THR, l] else dq
                     W[d_new, l] = dn
-                    if dn != dq and queued[l]:
+                    if dn != dq and not own[l]:
                         if W[ROW_NEXT, l] == np.inf and not ringed[l]:
                             W[ROW_NEXT, l], W[ROW_NV, l] = t_next + W[ROW_TD, l], dn * W[ROW_V, l]
                         else:
                             busy[l] = 1
                             done += 1 << 32
-                    Y[k, 0, out + l], Y[k, 1, out + l], Y[k, 2, out + l] = W[ROW_I, l], W[ROW_W, l], W[ROW_DELTA, l]
-                    dirs[k, out + l] = np.int8(dn)
+                    Y[k, 0, lo + l], Y[k, 1, lo + l], Y[k, 2, lo + l] = W[ROW_I, l], W[ROW_W, l], W[ROW_DELTA, l]
+                    dirs[k, lo + l] = np.int8(dn)
                     odd[l] = 0
             if done >> 32:
                 for l in range(LANES):
@@ -419,17 +414,17 @@ def _queued_run(t, idx, Pb, A, B, R, guard, Td, log, closed_loop, start, first, 
                 fill(W, d_new, log[k])
             else:
                 _decide_block(k, W, d_old, d_new, lo, R, guard, log, closed_loop, start, first, dir0)
-        if send(W, d_old, d_new, t[k], queued, ringed, flags):  # sets with a command already on its way
+        if send(W, d_old, d_new, t[k], own, ringed, flags):  # sets with a command already on its way
             for l in range(LANES):
                 if flags[l]:
                     _to_ring(l, t[k] + Td[lo + l], W[d_new, l] * W[ROW_V, l], W, arrive, volts, head, count, ringed)
             ring_next = _ring_next(arrive, head, ringed)
-        emit(Y, 3 * mp * k + out, mp, W, dirs, mp * k + out, d_new)
+        emit(Y, 3 * mp * k + lo, mp, W, dirs, mp * k + lo, d_new)
         k += 1
 
 
 @njit(cache=True)
-def _queued_free_run(k, n, t, idx, Pb, W, own, BK, BG, used, queued, ringed, Y, dirs, out, odd, busy, ring_next):
+def _queued_free_run(k, n, t, idx, Pb, W, own, BK, BG, used, ringed, Y, dirs, out, odd, busy, ring_next):
     """Samples k.. of a block with delayed sets, in closed loop past the controller's start, each in one pass
     (``advance_queued``) until one needs work set by set: returns that sample and its flags (0: a ring's
     command lands there, not stepped yet), or n.  The rare paths are the caller's."""
@@ -440,7 +435,7 @@ def _queued_free_run(k, n, t, idx, Pb, W, own, BK, BG, used, queued, ringed, Y, 
             return k, 0
         d_old, d_new = _command_rows(k)
         done = advance_queued(Pb, STEP_ENTRIES * idx[k - 1], W, d_old, d_new, own, BK, BG, used, tk,
-                              t_next - TIME_EPS, t_next - tk, t_next, queued, ringed, Y, 3 * mp * k + out, mp, dirs,
+                              t_next - TIME_EPS, t_next - tk, t_next, ringed, Y, 3 * mp * k + out, mp, dirs,
                               mp * k + out, odd, busy)
         if done:
             return k, done

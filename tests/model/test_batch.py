@@ -69,8 +69,8 @@ def test_nonsmooth_sets_fall_back_to_single_calls():
 
 @pytest.mark.parametrize("where", [5, 120])
 def test_one_nonsmooth_set_in_any_threads_share_sends_the_batch_to_single_calls(where):
-    # three blocks over two threads: a Coulomb set in either thread's share sends the whole batch down the
-    # single-call path
+    # three blocks, two threads: a Coulomb set in the first block or the last (where each thread starts) sends
+    # the whole batch down the single-call path
     specs = _linear_sets(n=130, seed=4)
     specs[where] = replace(specs[where], Tc=6e-4)
     batch = simulate_batch(specs, T, threads=2)
