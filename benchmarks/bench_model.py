@@ -42,8 +42,7 @@ from benchmarks.bench_rig import best_of
 from pipeline.config import default_config
 from pipeline.model.batch import idle_cores, simulate_batch
 from pipeline.model.compile import compile_kernels
-from pipeline.model.effects import (Backlash, CoulombFriction, CurrentSensorOffset, DriverVoltageDrop, LoopDelay,
-                                    RackInertia, SpringStiffness, ViscousFriction, build_spec)
+from pipeline.model.effects import build_spec, make_effect
 from pipeline.model.simulate import simulate
 from pipeline.rig.plant import simulate_reference
 from tests.model.ivp_reference import jittered_times, simulate_ivp
@@ -123,8 +122,8 @@ def bench_batch(t: np.ndarray, n: int = 1000) -> list[float]:
 
 def every_effect():
     base = default_config()
-    effects = (ViscousFriction(1e-4), CoulombFriction(6e-4), DriverVoltageDrop(0.3), Backlash(0.1),
-               LoopDelay(0.03), CurrentSensorOffset(0.04), RackInertia(1e-4), SpringStiffness(1.05))
+    effects = (make_effect("viscous_friction", {"b": 1e-4}), make_effect("coulomb_friction", {"Tc": 6e-4}), make_effect("driver_voltage_drop", {"Vd": 0.3}), make_effect("backlash", {"gap": 0.1}),
+               make_effect("loop_delay", {"Td": 0.03}), make_effect("current_sensor_offset", {"I0": 0.04}), make_effect("rack_inertia", {"Jr": 1e-4}), make_effect("spring_stiffness", {"k_scale": 1.05}))
     return build_spec(base.model, base.controller, base.drive, effects)
 
 

@@ -13,7 +13,7 @@ import time
 
 
 from pipeline.config import default_config
-from pipeline.model.effects import Backlash, CoulombFriction, CurrentSensorOffset, LoopDelay, RackInertia
+from pipeline.model.effects import make_effect
 from pipeline.model.simulate import sample_times, simulate
 from pipeline.rig.plant import simulate_reference
 from pipeline.rig.recording import RigSetup, make_recording
@@ -40,8 +40,8 @@ def main() -> None:
     print(f"  per-period solve_ivp baseline  {base * 1e3:8.1f} ms")
     print(f"  reference plant (events)       {ref * 1e3:8.1f} ms   {base / ref:6.1f}x faster than baseline")
     print(f"  fast simulator (for scale)     {fast * 1e3:8.1f} ms   {ref / fast:6.1f}x faster than reference")
-    every = (CoulombFriction(Tc=6e-4), Backlash(gap=0.05), LoopDelay(Td=0.05), RackInertia(Jr=1e-3),
-             CurrentSensorOffset(I0=0.05))
+    every = (make_effect("coulomb_friction", {"Tc": 6e-4}), make_effect("backlash", {"gap": 0.05}), make_effect("loop_delay", {"Td": 0.05}), make_effect("rack_inertia", {"Jr": 1e-3}),
+             make_effect("current_sensor_offset", {"I0": 0.05}))
     full = default_config().plant_spec(every)
     ref_full = best_of(lambda: simulate_reference(full, t))
     print(f"  reference plant, every non-smooth effect on: {ref_full * 1e3:.1f} ms")

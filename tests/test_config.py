@@ -8,7 +8,7 @@ from pipeline.config import (
     config_for_recording, config_from_dict, default_config, effects_toml_snippet, resolve_config,
 )
 from pipeline.errors import ConfigError
-from pipeline.model.effects import CoulombFriction, LoopDelay
+from pipeline.model.effects import make_effect
 
 
 def write(path: Path, text: str) -> Path:
@@ -44,7 +44,7 @@ def test_effects_fold_into_the_plant_spec(tmp_path):
                                       "loop_delay = { Td = 0.05 }\nviscous_friction = { b = 7.7e-4 }\n"
                                       "driver_voltage_drop = { Vd = 1.5 }\nspring_stiffness = { k_scale = 2.0 }\n")
     cfg = resolve_config([toml])
-    assert CoulombFriction(Tc=6e-4) in cfg.effects and LoopDelay(Td=0.05) in cfg.effects
+    assert make_effect("coulomb_friction", {"Tc": 6e-4}) in cfg.effects and make_effect("loop_delay", {"Td": 0.05}) in cfg.effects
     spec = cfg.plant_spec()
     assert spec.Tc == 6e-4 and spec.Td == 0.05
     assert spec.params.b == pytest.approx(7.7e-4)

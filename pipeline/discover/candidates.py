@@ -6,9 +6,10 @@ objective is the Gaussian likelihood with an unknown variance per signal,
 concentrated: nll = sum_s n_s/2 * log(mean(r_s^2)).  It needs no weights
 between rad and A, and it is what BIC charges parameters against.
 
-Every catalogue effect has one parameter, so a fit is a bounded 1-D search: a
-coarse scan over the effect's physical range (geometric, since magnitudes span
-decades), then Brent's method between the best scan point's neighbours.  Effects
+A candidate is scanned and fitted on its first parameter (``Param.scan``, the
+effect's own coarse grid over its physical range), then Brent's method between
+the best scan point's neighbours; every parameter of every effect found so far
+is refitted jointly by Gauss-Newton (``polish``).  Effects
 found in earlier rounds are not frozen: the scan predicts how they would move
 (one Gauss-Newton step), and the candidate is refitted together with them.
 """
@@ -23,34 +24,26 @@ from scipy.optimize import minimize_scalar
 from pipeline.discover.measurement import Measurement
 from pipeline.discover.residuals import residuals
 from pipeline.errors import PdrError
-from pipeline.model.effects import CATALOGUE, Effect, PlantSpec
+from pipeline.model.effects import CATALOGUE, Effect, Param, PlantSpec
 from pipeline.model.simulate import SimResult
 
-# The value at which each effect is absent: the interval must exclude it.
-NULL_VALUE: dict[str, float] = {
-    "viscous_friction": 0.0, "coulomb_friction": 0.0, "driver_voltage_drop": 0.0, "backlash": 0.0,
-    "loop_delay": 0.0, "current_sensor_offset": 0.0, "rack_inertia": 0.0, "spring_stiffness": 1.0,
-}
+def _first(name: str) -> Param:
+    """The parameter discovery scans: the effect's first (its others are refitted jointly)."""
+    return CATALOGUE[name].PARAMS[0]
 
 
 def _scan(name: str) -> np.ndarray:
-    """Coarse scan points inside the effect's BOUNDS (the null value included)."""
-    lo, hi = next(iter(CATALOGUE[name].BOUNDS.values()))
-    if name == "current_sensor_offset":        # costs no simulation when the run starts at rest (Evaluator)
-        return np.linspace(lo, hi, 161)
-    if name == "spring_stiffness":
-        return np.unique(np.concatenate([np.geomspace(0.25, 4.0, 17), [0.9, 0.95, 0.98, 1.0, 1.02, 1.05, 1.1]]))
-    top = {"coulomb_friction": 5e-3, "driver_voltage_drop": 5.0, "loop_delay": 0.3, "backlash": 0.4}.get(name, hi)
-    return np.concatenate([[lo], np.geomspace(top * 2e-3, top, 15)])
+    """Coarse scan points inside the effect's bounds (its "absent" value included)."""
+    return np.asarray(_first(name).scan, dtype=float)
 
 
 def parameter_of(name: str) -> str:
-    return next(iter(CATALOGUE[name].UNITS))
+    return _first(name).name
 
 
 def make(name: str, value: float) -> Effect:
-    """The effect at ``value`` (no range check: the scan stays inside BOUNDS)."""
-    return CATALOGUE[name](**{parameter_of(name): float(value)})
+    """The effect at ``value`` (no range check: the scan stays inside the bounds)."""
+    return CATALOGUE[name].at(value)
 
 
 class Evaluator:
@@ -176,17 +169,39 @@ class Fit:
     @property
     def excludes_null(self) -> bool:
         lo, hi = self.interval
-        null = NULL_VALUE[self.name]
-        return not (lo <= null <= hi)
+        return not (lo <= _first(self.name).absent <= hi)
 
 
 def value_of(e: Effect) -> float:
-    return next(iter(e.parameters.values()))
+    return e.value
 
 
-def _clip(name: str, v: float) -> float:
-    lo_b, hi_b = next(iter(CATALOGUE[name].BOUNDS.values()))
-    return float(np.clip(v, lo_b, hi_b))
+# ------------------------------------------------------------------ the joint parameter vector
+# Every parameter of every effect in a model, in order: what sensitivities, Gauss-Newton steps and
+# intervals run over (an effect may have several parameters).
+
+def coordinates(effects: tuple[Effect, ...]) -> list[tuple[int, Param]]:
+    return [(i, p) for i, e in enumerate(effects) for p in e.PARAMS]
+
+
+def values_of(effects: tuple[Effect, ...]) -> np.ndarray:
+    return np.array([e.parameters[p.name] for i, p in coordinates(effects) for e in (effects[i],)])
+
+
+def with_values(effects: tuple[Effect, ...], values: np.ndarray) -> tuple[Effect, ...]:
+    params: list[dict[str, float]] = [dict(e.parameters) for e in effects]
+    for (i, p), v in zip(coordinates(effects), values):
+        params[i][p.name] = float(v)
+    return tuple(type(e)(**ps) for e, ps in zip(effects, params))
+
+
+def first_coordinate(effects: tuple[Effect, ...], i: int) -> int:
+    """Index in the joint vector of effect i's first parameter."""
+    return sum(len(e.PARAMS) for e in effects[:i])
+
+
+def _clip(p: Param, v: float) -> float:
+    return float(np.clip(v, *p.bounds))
 
 
 # ------------------------------------------------------------------ sensitivities
@@ -199,21 +214,22 @@ class Sensitivity:
     jac: list[dict[str, np.ndarray]]      # one per effect, per signal
 
 
-def _step(name: str, v: float) -> float:
-    lo_b, hi_b = next(iter(CATALOGUE[name].BOUNDS.values()))
+def _step(p: Param, v: float) -> float:
+    lo_b, hi_b = p.bounds
     return max(abs(v) * 1e-3, (hi_b - lo_b) * 1e-6)
 
 
 def sensitivity(ev: Evaluator, effects: tuple[Effect, ...]) -> Sensitivity:
-    """Forward differences, one simulation per effect (stepping inward at a bound or a failure)."""
+    """Forward differences, one simulation per parameter (stepping inward at a bound or a failure)."""
     r0 = residuals(ev.meas, ev.sim(effects))
     jac = []
-    for i, e in enumerate(effects):
-        v = value_of(e)
-        lo_b, hi_b = next(iter(CATALOGUE[e.name].BOUNDS.values()))
-        h = _step(e.name, v)
+    base = values_of(effects)
+    for c, (_, p) in enumerate(coordinates(effects)):
+        v = float(base[c])
+        lo_b, hi_b = p.bounds
+        h = _step(p, v)
         v2 = v + h if v + h <= hi_b else v - h
-        moved = lambda x: (*effects[:i], make(e.name, x), *effects[i + 1:])  # noqa: E731
+        moved = lambda x: with_values(effects, np.concatenate([base[:c], [x], base[c + 1:]]))  # noqa: E731
         r1 = residuals(ev.meas, ev.sim(moved(v2)))
         if not all(np.all(np.isfinite(r)) for r in r1.values()) and v - h >= lo_b:
             v2 = v - h
@@ -245,11 +261,10 @@ def gauss_newton(r0: dict[str, np.ndarray], jac: list[dict[str, np.ndarray]],
 def moved_effects(effects: tuple[Effect, ...], step: np.ndarray, trust: float = 0.5) -> tuple[Effect, ...]:
     """Effects with their parameters moved by ``step``, each move limited to a trust region."""
     out = []
-    for e, d in zip(effects, step):
-        v = value_of(e)
-        limit = trust * max(abs(v), _step(e.name, v) * 100)
-        out.append(make(e.name, _clip(e.name, v + float(np.clip(d, -limit, limit)))))
-    return tuple(out)
+    for (_, p), v, d in zip(coordinates(effects), values_of(effects), step):
+        limit = trust * max(abs(v), _step(p, v) * 100)
+        out.append(_clip(p, v + float(np.clip(d, -limit, limit))))
+    return with_values(effects, np.array(out))
 
 
 def _nll_of(ev: Evaluator, r: dict[str, np.ndarray]) -> float:
@@ -282,7 +297,7 @@ def scan(ev: Evaluator, base: tuple[Effect, ...], name: str, base_sens: Sensitiv
         if base and base_sens is not None and loss < FAILED_NLL:
             step, _ = gauss_newton(r, base_sens.jac)
             trial = moved_effects(base, step)
-            applied = np.array([value_of(t) - value_of(b) for t, b in zip(trial, base)])
+            applied = values_of(trial) - values_of(base)
             predicted = {s: x + sum(j[s] * a for j, a in zip(base_sens.jac, applied)) for s, x in r.items()}
             loss_p = _nll_of(ev, predicted)
             if loss_p < loss:
@@ -311,9 +326,10 @@ def bracket_around(name: str, v: float, width: float = 0.3) -> tuple[float, floa
     (a model far off drifts out of phase with the logged command), so refits
     stay in the basin the full scan found.
     """
-    lo_b, hi_b = next(iter(CATALOGUE[name].BOUNDS.values()))
-    if name == "current_sensor_offset":
-        half = max(abs(v) * width, 0.02)
+    p = _first(name)
+    lo_b, hi_b = p.bounds
+    if p.signed:                        # either side of "absent": a range on the value, not on its scale
+        half = max(abs(v) * width, 0.01 * (hi_b - lo_b))
         return max(v - half, lo_b), min(v + half, hi_b)
     if v <= lo_b:
         return lo_b, float(_scan(name)[1])
@@ -326,7 +342,7 @@ def refit(ev: Evaluator, effects: tuple[Effect, ...], width: float = 0.2) -> tup
     for i, e in enumerate(current):
         others = tuple(current[:i] + current[i + 1:])
         v_new, _ = fit_value(ev, others, e.name, bracket_around(e.name, value_of(e), width))
-        current[i] = make(e.name, v_new)
+        current[i] = replace(e, **{e.PARAMS[0].name: v_new})
     return tuple(current)
 
 
@@ -387,18 +403,18 @@ def intervals(sens: Sensitivity, values: list[float]) -> list[tuple[float, float
     return out
 
 
-def interval(sens: Sensitivity, v: float) -> tuple[float, float]:
-    """The last effect's interval (the candidate's; the earlier ones are free)."""
-    return intervals(sens, [0.0] * (len(sens.jac) - 1) + [v])[-1]
+def effect_intervals(sens: Sensitivity, effects: tuple[Effect, ...]) -> list[tuple[float, float]]:
+    """Each effect's first-parameter interval, all parameters of all effects free."""
+    spans = intervals(sens, list(values_of(effects)))
+    return [spans[first_coordinate(effects, i)] for i in range(len(effects))]
 
 
 def prune(ev: Evaluator, effects: tuple[Effect, ...]) -> tuple[Effect, ...]:
     """Backward elimination: an effect whose interval, with all the others refitted, includes
     its "no effect" value is dropped (an early pick a later one made redundant)."""
     while len(effects) > 1:
-        sens = sensitivity(ev, effects)
-        spans = intervals(sens, [value_of(e) for e in effects])
-        weak = [i for i, (e, (lo, hi)) in enumerate(zip(effects, spans)) if lo <= NULL_VALUE[e.name] <= hi]
+        spans = effect_intervals(sensitivity(ev, effects), effects)
+        weak = [i for i, (e, (lo, hi)) in enumerate(zip(effects, spans)) if lo <= e.PARAMS[0].absent <= hi]
         if not weak:
             break
         rest = effects[:weak[0]] + effects[weak[0] + 1:]
@@ -444,7 +460,7 @@ def fit_candidate(ev: Evaluator, base: tuple[Effect, ...], name: str,
             mse_b[s] = mse_b.get(s, 0.0) + m * share
         for s, m in ev.mse(sim_f, test).items():
             mse_a[s] = mse_a.get(s, 0.0) + m * share
-    lo, hi = interval(sens, value)
+    lo, hi = effect_intervals(sens, effects)[-1]
     spread = (max(fold_values) - min(fold_values)) / 2.0
     lo, hi = min(lo, value - spread), max(hi, value + spread)
     return Fit(name=name, parameter=parameter_of(name), value=value, nll=nll_all, interval=(lo, hi),

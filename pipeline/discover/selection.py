@@ -31,8 +31,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pipeline.discover.candidates import (
-    Evaluator, Fit, Scan, fit_candidate, folds_by_cycle, intervals, parameter_of, polish, prune, refit, scan,
-    sensitivity, value_of,
+    Evaluator, Fit, Scan, effect_intervals, fit_candidate, folds_by_cycle, parameter_of, polish, prune, refit,
+    scan, sensitivity, value_of,
 )
 from pipeline.discover.measurement import Measurement, ambiguous_switches, settle_switches
 from pipeline.discover.residuals import events, noise_floor, residuals
@@ -54,8 +54,8 @@ AT_NOISE_FLOORS = 3.0        # after an effect, stop when every signal is within
 NEAR_TIE = 2.0              # runner-up leaves at most twice the winner's held-out structure (+1 noise variance)
 MAX_EFFECTS = 3
 TIME_BUDGET_S = 8.0          # CPU s: a further round starts only if, at the last round's pace, it ends within this
-FULL_FITS = (8, 3, 3)        # per round, how many of the best-scanning candidates get the full assessment
-                             # (every one in round 1; later rounds only the 3 that gain most in the coarse scan)
+LATER_FULL_FITS = 3          # every candidate gets the full assessment in round 1; later rounds only the
+                             # few that gain most in the coarse scan
 
 
 @dataclass
@@ -86,7 +86,7 @@ class Assessment:
         f = self.fit
         return {
             "name": f.name, "score": round(self.score, 4), "round": self.round,
-            "parameters": {f.parameter: f.value}, "units": dict(CATALOGUE[f.name].UNITS),
+            "parameters": f.effect.parameters, "units": dict(CATALOGUE[f.name].UNITS),
             "interval": {f.parameter: list(f.interval)}, "fold_estimates": {f.parameter: list(f.fold_values)},
             "delta_bic": self.delta_bic, "heldout_nll_gain": f.heldout_nll_gain,
             "heldout_gain_noise_floors": self.heldout_gain_floors,
@@ -120,27 +120,29 @@ class Screened:
 
 def signature_energy(name: str, meas: Measurement, ev: Evaluator, effects: tuple[Effect, ...]) -> float:
     """Mean energy of the residual pattern that points at ``name``, in noise variances (~1 for
-    pure noise): where a local fingerprint exists (MODEL.md), the residual there -- right after
-    each switch (loop delay), near zero velocity (Coulomb), right after each angle zero crossing
-    (backlash), the bias of the current alone (sensor offset); the effects that act everywhere
-    (viscous, inertia, spring, driver drop) have no local window, so the whole residual.
+    pure noise): where the effect declares a local fingerprint (``Effect.SIGNATURE``), the
+    residual there -- right after each switch, near zero velocity, right after each angle zero
+    crossing, the bias of the current alone; an effect acting everywhere has no local window,
+    so the whole residual.
 
     Local windows, not projections on w or dw/dt: when the base model drifts out of phase
     with the recording, its residual is no small perturbation along any such direction."""
     sim = ev.sim(effects)
     res = residuals(meas, sim)
-    if name == "current_sensor_offset":
+    where = CATALOGUE[name].SIGNATURE
+    if where == "current_bias":
         r = res.get("current")
         return float(np.mean(r)) ** 2 / ev.floor["current"] * len(r) if r is not None else 0.0
-    evs = events(meas)
-    w = sim.omega
-    wmax = float(np.nanmax(np.abs(w))) if np.any(np.isfinite(w)) else 1.0
-    masks = {
-        "loop_delay": _after(meas.n, evs.switches, 3),
-        "coulomb_friction": np.abs(w) < 0.15 * wmax,
-        "backlash": _after(meas.n, evs.zero_crossings, 3),
-    }
-    m = masks.get(name, np.ones(meas.n, dtype=bool))
+    if where == "after_switch":
+        m = _after(meas.n, events(meas).switches, 3)
+    elif where == "after_zero_crossing":
+        m = _after(meas.n, events(meas).zero_crossings, 3)
+    elif where == "low_speed":
+        w = sim.omega
+        wmax = float(np.nanmax(np.abs(w))) if np.any(np.isfinite(w)) else 1.0
+        m = np.abs(w) < 0.15 * wmax
+    else:
+        m = np.ones(meas.n, dtype=bool)
     if not m.any():
         return 0.0
     return float(sum(np.mean(r[m] ** 2) / ev.floor[s] for s, r in res.items()))
@@ -252,7 +254,7 @@ def select(meas: Measurement, names: tuple[str, ...] | None = None) -> Selection
         scans = {n: scan(ev, effects, n, base_sens) for n in remaining}
         scan_gain = {n: nll_now - float(np.min(scans[n].nll)) for n in remaining}
         order = sorted(remaining, key=lambda n: -scan_gain[n])
-        k = FULL_FITS[min(round_, len(FULL_FITS)) - 1]
+        k = len(order) if round_ == 1 else LATER_FULL_FITS
         full = [n for n in order[:k] if scan_gain[n] > 0]
         assessed = sorted((assess(ev, meas, effects, n, folds, round_, scans[n]) for n in full),
                           key=lambda a: -a.fit.heldout_nll_gain)
@@ -278,7 +280,7 @@ def select(meas: Measurement, names: tuple[str, ...] | None = None) -> Selection
     kept = prune(ev, effects)
     pruned = [e.name for e in effects if e.name not in {k.name for k in kept}]
     effects = kept
-    spans = intervals(sensitivity(ev, effects), [value_of(e) for e in effects]) if effects else []
+    spans = effect_intervals(sensitivity(ev, effects), effects) if effects else []
     ex_before = excess(ev, ())
     ex_after = excess(ev, effects)
     structured = max(ex_after.values()) > STRUCTURE_FLOORS
@@ -313,8 +315,7 @@ def check_declared(meas: Measurement, floor: dict[str, float]) -> list[dict]:
         declared.append(("model.b", "b", cfg.model.b))
     out = []
     for name, param, value in declared:
-        if name == "spring_stiffness":            # both directions are already candidates
-            continue
+        absent = 0.0 if name == "model.b" else CATALOGUE[name].PARAMS[0].absent
 
         def with_value(v: float, name=name):
             if name == "model.b":
@@ -325,8 +326,8 @@ def check_declared(meas: Measurement, floor: dict[str, float]) -> list[dict]:
             trial = dc_replace(meas, config=with_value(v))
             return Evaluator(trial, floor).nll(trial.replay(trial.spec()))
 
-        res = minimize_scalar(loss, bounds=(0.0, value), method="bounded",
-                              options={"xatol": 1e-3 * value, "maxiter": 20})
+        res = minimize_scalar(loss, bounds=(min(absent, value), max(absent, value)), method="bounded",
+                              options={"xatol": 1e-3 * abs(value - absent), "maxiter": 20})
         trial = dc_replace(meas, config=with_value(float(res.x)))
         ev = Evaluator(trial, floor)
         left = {s: m / floor[s] - 1.0 for s, m in ev.mse(trial.replay(trial.spec())).items()}

@@ -18,7 +18,6 @@ import numpy as np
 import pandas as pd
 
 from pipeline.config import RigConfig, effects_toml_snippet
-from pipeline.discover.candidates import make, value_of
 from pipeline.discover.measurement import Measurement, measurement_from_kinematics
 from pipeline.discover.residuals import binned, describe, signatures
 from pipeline.discover.selection import Selection, check_declared, select
@@ -89,16 +88,11 @@ def discover(kin: pd.DataFrame, config: RigConfig, name: str) -> Discovery:
 
 def merge_effects(existing: tuple[Effect, ...], found: tuple[Effect, ...]) -> tuple[Effect, ...]:
     """The augmented model's whole effect list: the rig's own effects plus what was found, one entry
-    per name (a TOML table cannot repeat a key): parameters add, spring scales multiply (as stacking
-    them in ``build_spec`` does)."""
+    per name (a TOML table cannot repeat a key), two of a kind combined as the effect says
+    (``Effect.combine``: as stacking them in ``build_spec`` does)."""
     merged: dict[str, Effect] = {e.name: e for e in existing}
     for e in found:
-        if e.name in merged:
-            old = value_of(merged[e.name])
-            new = old * value_of(e) if e.name == "spring_stiffness" else old + value_of(e)
-            merged[e.name] = make(e.name, new)
-        else:
-            merged[e.name] = e
+        merged[e.name] = merged[e.name].combine(e) if e.name in merged else e
     return tuple(merged.values())
 
 
@@ -108,7 +102,7 @@ def augmented_effects(d: "Discovery") -> tuple[Effect, ...]:
 
 def _effect_json(e: Effect, span: tuple[float, float], sel: Selection) -> dict:
     out = e.to_json()
-    out["interval"] = {next(iter(e.parameters)): list(span)}
+    out["interval"] = {e.PARAMS[0].name: list(span)}
     out["round"] = next((a.round for rnd in sel.rounds for a in rnd
                          if getattr(a, "accepted", False) and a.fit.name == e.name), None)
     return out

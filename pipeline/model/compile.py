@@ -1,14 +1,12 @@
 """Compile every numba kernel of the model once, so no run pays for it: ``python -m pipeline.model.compile``.
 
-numba compiles a kernel on its first call (about 30 s for all of them from an
-empty cache) and stores it beside the sources (``cache=True``); later
+numba compiles a kernel on its first call (tens of seconds for all of them
+from an empty cache) and stores it beside the sources (``cache=True``); later
 processes load it in well under a second.  ``make``'s set-up calls this after
 installing, so the first ``pdr run`` or test session on a fresh machine does
-not stall on it (``pdr run`` would otherwise compile in its forkserver and,
-for the non-linear paths, in each worker).  Each call below takes a distinct
-compiled path: closed loop and replay, with and without a loop delay, one set
-(``kernels``) and a batch (``lanes``, its sets side by side), the event-driven
-plant with every effect, the continuous guard.
+not stall on it.  The calls below take every compiled path: the linear plant
+closed loop and in replay, with and without a loop delay, the event-driven
+plant with every catalogued effect, the continuous guard.
 """
 
 from __future__ import annotations
@@ -23,9 +21,7 @@ import numpy as np
 def compile_kernels() -> float:
     """Call every compiled path once (compile, or load from the cache); returns the seconds it took."""
     from pipeline.config import default_config
-    from pipeline.model.batch import simulate_batch
-    from pipeline.model.effects import (Backlash, CoulombFriction, CurrentSensorOffset, DriverVoltageDrop, LoopDelay,
-                                        RackInertia, SpringStiffness, ViscousFriction, build_spec)
+    from pipeline.model.effects import CATALOGUE, build_spec
     from pipeline.model.simulate import simulate
 
     start = time.perf_counter()
@@ -33,15 +29,11 @@ def compile_kernels() -> float:
     spec = cfg.plant_spec()
     t = np.cumsum(np.where(np.arange(60) % 3 == 0, 0.051, 0.050))       # millis() spacing, 50/51 ms
     log = simulate(spec, t).dir
-    delayed = [replace(spec, Td=0.03, I0=0.01), replace(spec, Td=0.02, I0=-0.01)]
-    simulate(delayed[0], t)
-    simulate(delayed[0], t, dir_log=log, closed_loop=False)
+    delayed = replace(spec, Td=0.03, I0=0.01)
+    simulate(delayed, t)
+    simulate(delayed, t, dir_log=log, closed_loop=False)
     simulate(spec, t, guard="continuous")
-    simulate_batch([spec, spec], t)
-    simulate_batch(delayed, t)
-    simulate_batch(delayed, t, dir_log=log, closed_loop=False)
-    every = (ViscousFriction(1e-4), CoulombFriction(6e-4), DriverVoltageDrop(0.3), Backlash(0.1),
-             LoopDelay(0.03), CurrentSensorOffset(0.04), RackInertia(1e-4), SpringStiffness(1.05))
+    every = [cls.typical() for cls in CATALOGUE.values()]
     simulate(build_spec(cfg.model, cfg.controller, cfg.drive, every), t)
     return time.perf_counter() - start
 

@@ -1,4 +1,4 @@
-"""Exact discretisation of the linear plant x' = A x + B u (eqs. 2, 4/8, 5), compiled (numba).
+"""Exact discretisation of the linear plant x' = A x + B u (eqs. 2, 4/8, 5) and its stepper, compiled (numba).
 
 Between two instants the input is held (zero-order hold), so the state moves
 by ``x(t+h) = Phi(h) x + Gamma(h) u`` with ``Phi = e^{A h}`` and
@@ -8,7 +8,8 @@ recording jitters between a couple of values (50/51 ms), so a whole recording
 needs a few exponentials (one per distinct rounded length, ``step_lengths``)
 and then 500 small matrix-vector products.  A motor-voltage change at ``a``
 inside a step adds ``Gamma(h - a) * du`` (superposition of a step input), which
-is how the loop delay ``Td`` is handled without losing exactness.
+is how the loop delay ``Td`` is handled without losing exactness (``zoh_step``,
+the linear plant's stepper for the controller loop of ``pipeline.model.loop``).
 
 These are plain-float loops compiled with numba: at 3x3, numpy's per-call
 overhead would cost more than the arithmetic, and CPython ~1 us per operation.
@@ -19,13 +20,11 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from llvmlite import ir
-from numba import njit, types
-from numba.core import cgutils
-from numba.extending import intrinsic
-from numba.np.arrayobj import make_array
+from typing import NamedTuple
 
-from pipeline.model.simd import V8, VEC, Lanes, splat
+from numba import njit
+
+from pipeline.model.loop import STEPPERS, TIME_EPS, run
 
 # Lengths closer than this share a cache entry: millis() spacing differences carry
 # ~1e-15 s of float noise, far below any physical effect.
@@ -41,12 +40,11 @@ def step_key(h: float) -> float:
 
 
 @njit(cache=True)
-def _scaling(A: np.ndarray, B: np.ndarray, q: int, h: float) -> tuple[int, float]:
-    """Squarings s and the scaled length h / 2^s that bring ||[[A[q], B[q]], [0, 0]] h||_inf to <= 0.25
-    (A (m, 3, 3), B (m, 3): indexed in place, no per-set views)."""
-    norm = max(abs(A[q, 0, 0]) + abs(A[q, 0, 1]) + abs(A[q, 0, 2]) + abs(B[q, 0]),
-               abs(A[q, 1, 0]) + abs(A[q, 1, 1]) + abs(A[q, 1, 2]) + abs(B[q, 1]),
-               abs(A[q, 2, 0]) + abs(A[q, 2, 1]) + abs(A[q, 2, 2]) + abs(B[q, 2])) * abs(h)
+def _scaling(A: np.ndarray, B: np.ndarray, h: float) -> tuple[int, float]:
+    """Squarings s and the scaled length h / 2^s that bring ||[[A, B], [0, 0]] h||_inf to <= 0.25."""
+    norm = max(abs(A[0, 0]) + abs(A[0, 1]) + abs(A[0, 2]) + abs(B[0]),
+               abs(A[1, 0]) + abs(A[1, 1]) + abs(A[1, 2]) + abs(B[1]),
+               abs(A[2, 0]) + abs(A[2, 1]) + abs(A[2, 2]) + abs(B[2])) * abs(h)
     s = max(0, math.ceil(math.log2(norm / 0.25))) if norm > 0.25 else 0
     return s, h / (2.0 ** s)
 
@@ -88,7 +86,7 @@ def phi_gamma_into(A: np.ndarray, B: np.ndarray, h: float, out: np.ndarray) -> N
     With ||X||_inf <= 0.25 after scaling the truncation error is below 3e-18
     relative, so this matches ``scipy.linalg.expm`` to rounding.
     """
-    s, hs = _scaling(A.reshape(1, 3, 3), B.reshape(1, 3), 0, h)
+    s, hs = _scaling(A, B, h)
     x = (A[0, 0] * hs, A[0, 1] * hs, A[0, 2] * hs, A[1, 0] * hs, A[1, 1] * hs, A[1, 2] * hs,
          A[2, 0] * hs, A[2, 1] * hs, A[2, 2] * hs)
     b = (B[0] * hs, B[1] * hs, B[2] * hs)
@@ -101,87 +99,6 @@ def phi_gamma_into(A: np.ndarray, B: np.ndarray, h: float, out: np.ndarray) -> N
     for i in range(9):
         out[i] = p[i]
     out[9], out[10], out[11] = g
-
-
-# Sets whose exponentials ``phi_gamma_lanes`` computes side by side (their working arrays stay in L1).
-LANE_CHUNK = 64
-
-
-@njit(cache=True)
-def phi_gamma_lanes(A: np.ndarray, B: np.ndarray, sets: np.ndarray, h: np.ndarray, out: np.ndarray) -> None:
-    """out[:, i] = ``phi_gamma_into(A[sets[i]], B[sets[i]], h[i])`` for every i, the lanes side by side.
-
-    The same scaling, Horner steps and squarings in the same order per lane
-    (``_scaling``, ``_horner``, ``_square``), so the same bits (tested); a lane
-    needing fewer squarings than the most of its eight keeps its value by a
-    select.
-    One exponential on its own is a chain of dependent operations (~300 ns);
-    lanes side by side fill the vector units (a few times faster each).
-    """
-    c = len(sets)
-    W = np.zeros(25 * LANE_CHUNK)    # rows of LANE_CHUNK lanes: x (9), b (3), p (9), g (3), squarings
-    # (zeros: the lanes past the last set of a chunk are computed too, on finite numbers)
-    for c0 in range(0, c, LANE_CHUNK):
-        w = min(LANE_CHUNK, c - c0)
-        for i in range(w):
-            q = sets[c0 + i]
-            s, hs = _scaling(A, B, q, h[c0 + i])
-            for r in range(3):
-                for col in range(3):
-                    W[(3 * r + col) * LANE_CHUNK + i] = A[q, r, col] * hs
-                W[(9 + r) * LANE_CHUNK + i] = B[q, r] * hs
-            W[24 * LANE_CHUNK + i] = s
-        for i0 in range(0, w, VEC):                     # eight lanes at a time, in registers
-            smax = 0
-            for i in range(i0, min(i0 + VEC, w)):
-                smax = max(smax, int(W[24 * LANE_CHUNK + i]))
-            _expm_lanes(W, i0, smax)
-        for i in range(w):
-            for e in range(12):
-                out[e, c0 + i] = W[(12 + e) * LANE_CHUNK + i]
-
-
-@intrinsic
-def _expm_lanes(typingctx, W, i0, smax):
-    """Lanes i0..i0+7 of ``phi_gamma_lanes``' rows: P = I, g = 0, the twelve Horner steps of ``_horner``,
-    then ``_square`` while a lane needs more squarings (row 24; the others keep theirs by a select).
-
-    LLVM vector code with the 24 numbers of eight lanes in registers (a loop
-    over lanes reloaded them at every step), emitted by ``_horner`` and
-    ``_square`` themselves on ``simd.Lanes``: the same operations in the same
-    order per lane, so the same bits.
-    """
-    sig = types.void(W, types.intp, types.intp)
-
-    def codegen(context, builder, signature, args):
-        data = make_array(signature.args[0])(context, builder, args[0]).data
-        i0, smax = args[1], args[2]
-
-        def ptr(row):
-            at = builder.add(i0, ir.Constant(ir.IntType(64), row * LANE_CHUNK))
-            return builder.bitcast(builder.gep(data, [at]), V8.as_pointer())
-
-        def lanes(values):
-            return tuple(Lanes(builder, v) for v in values)
-
-        x = lanes(builder.load(ptr(r), align=8) for r in range(9))
-        b = lanes(builder.load(ptr(9 + r), align=8) for r in range(3))
-        p, g = lanes(1.0 if i in (0, 4, 8) else 0.0 for i in range(9)), lanes([0.0] * 3)
-        for j in range(12, 0, -1):
-            p, g = _horner.py_func(x, b, p, g, Lanes(builder, 1.0 / j))
-        squarings = builder.load(ptr(24), align=8)
-        cells = [cgutils.alloca_once_value(builder, v.v) for v in p + g]
-        with cgutils.for_range(builder, smax) as loop:   # squaring number k where the lane needs it
-            cur = [builder.load(c) for c in cells]
-            p2, g2 = _square.py_func(lanes(cur[:9]), lanes(cur[9:]))
-            use = builder.fcmp_ordered("<", splat(builder, builder.sitofp(loop.index, ir.DoubleType())), squarings)
-            for c, new, old in zip(cells, p2 + g2, cur):
-                builder.store(builder.select(use, new.v, old), c)
-        for e, c in enumerate(cells):
-            builder.store(builder.load(c), ptr(12 + e), align=8)
-        return context.get_dummy_value()
-
-    return sig, codegen
 
 
 @njit(cache=True)
@@ -225,3 +142,85 @@ def step_lengths(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             found += 1
         idx[k] = last = j
     return lengths[:found], idx
+
+
+# Split lengths remembered in the delayed steps (a Td landing inside steps of a few lengths).
+MAX_SPLIT_LENGTHS = 8
+
+
+class Zoh(NamedTuple):
+    """The linear plant as ``zoh_step`` carries it: step matrices per distinct length, and the
+    input matrices Gamma(h - a) of the split lengths met so far (``n_split[0]`` of them, a ring)."""
+
+    P: np.ndarray               # (lengths, 12): Phi row-major, Gamma
+    idx: np.ndarray             # per step, the row of P
+    A: np.ndarray
+    B: np.ndarray
+    split_keys: np.ndarray      # (MAX_SPLIT_LENGTHS,)
+    split_gamma: np.ndarray     # (MAX_SPLIT_LENGTHS, 3)
+    n_split: np.ndarray         # (1,) int
+
+
+@njit(cache=True)
+def _split_gamma(zp: Zoh, key: float) -> int:
+    """Row of ``zp.split_gamma`` holding Gamma(key), computing it if not cached (few: Td is fixed)."""
+    n = zp.n_split[0]
+    c = 0
+    while c < n and zp.split_keys[c] != key:
+        c += 1
+    if c == n:
+        if n == MAX_SPLIT_LENGTHS:
+            c = n = 0
+        G = phi_gamma(zp.A, zp.B, key)
+        zp.split_keys[c] = key
+        zp.split_gamma[c, 0], zp.split_gamma[c, 1], zp.split_gamma[c, 2] = G[9], G[10], G[11]
+        zp.n_split[0] = n + 1
+    return c
+
+
+@njit(cache=True)
+def zoh_step(zp: Zoh, x, k, tk, t_next, u_m, arrive, volts, head, tail, armed, guard):
+    """One sample step: x+ = Phi(h) x + Gamma(h) u0 + sum over commands landing at a inside the
+    step of Gamma(h - a) du (superposition of step inputs), exact for a piecewise constant input."""
+    P, j = zp.P, zp.idx[k]             # indexing P[j, .] directly: a row view would cost a refcount per step
+    I, w, dl = x
+    h = t_next - tk
+    u0 = u_m
+    e0 = e1 = e2 = 0.0
+    changed = False
+    while head < tail and arrive[head] < t_next - TIME_EPS:
+        du = volts[head] - u_m
+        u_m = volts[head]
+        a = arrive[head] - tk
+        head += 1
+        if du != 0.0:
+            changed = True
+            c = _split_gamma(zp, step_key(h - a))
+            e0 += zp.split_gamma[c, 0] * du
+            e1 += zp.split_gamma[c, 1] * du
+            e2 += zp.split_gamma[c, 2] * du
+    if changed:
+        x = (P[j, 0] * I + P[j, 1] * w + P[j, 2] * dl + P[j, 9] * u0 + e0,
+             P[j, 3] * I + P[j, 4] * w + P[j, 5] * dl + P[j, 10] * u0 + e1,
+             P[j, 6] * I + P[j, 7] * w + P[j, 8] * dl + P[j, 11] * u0 + e2)
+    else:                                # most steps: adding e = 0 would only lengthen the chain
+        x = (P[j, 0] * I + P[j, 1] * w + P[j, 2] * dl + P[j, 9] * u0,
+             P[j, 3] * I + P[j, 4] * w + P[j, 5] * dl + P[j, 10] * u0,
+             P[j, 6] * I + P[j, 7] * w + P[j, 8] * dl + P[j, 11] * u0)
+    return x, t_next, u_m, head, False
+
+
+STEPPERS[Zoh] = zoh_step
+
+
+@njit(cache=True)
+def run_zoh(t, A, B, R, guard, V, v_bias, Td, x0, log, closed_loop, start, first, dir0,
+            current, omega, delta, dirs) -> None:
+    """The automaton on the linear plant (sampled guard): one exponential per distinct step length."""
+    lengths, idx = step_lengths(t)
+    P = np.empty((len(lengths), 12))
+    for j in range(len(lengths)):
+        phi_gamma_into(A, B, lengths[j], P[j])
+    zp = Zoh(P, idx, A, B, np.empty(MAX_SPLIT_LENGTHS), np.empty((MAX_SPLIT_LENGTHS, 3)), np.zeros(1, dtype=np.int64))
+    run(zp, t, R, guard, V, v_bias, Td, x0, log, closed_loop, start, first, dir0, False,
+        current, omega, delta, dirs)

@@ -24,8 +24,8 @@ exponential, so break-away is solved in closed form.  States are snapped onto
 the surface they reached (w = 0 exactly, delta = +/-R gap/2 exactly), so a
 stuck pinion stays exactly still and a regime never re-fires at its entry.
 
-``run_events`` is the automaton around it (the controller at the samples,
-delayed commands, the continuous guard).  Everything is compiled with numba:
+``event_step`` is this plant's stepper for the controller loop
+(``pipeline.model.loop``), ``run_events`` the automaton on it.  Everything is compiled with numba:
 the plant is a ``Plant`` tuple of arrays and dicts that the functions share,
 so one simulation is one compiled call.
 """
@@ -38,8 +38,8 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from pipeline.model.effects import PlantSpec
-from pipeline.model.kernels import TIME_EPS, decide
+from pipeline.model.loop import STEPPERS, TIME_EPS, run
+from pipeline.model.spec import PlantSpec
 from pipeline.model.linear import step_key
 from pipeline.model.modal import (ModalData, coefficients, event_function, first_root, gd, modal_data, state,
                                   step_matrices, zero_of_derivative)
@@ -439,73 +439,46 @@ def _slip(pl: Plant, x, u: float, L: float, guard_mode: int, guard_rad: float):
     return xn, best_tau, best_kind, best_arg
 
 
-# -- the automaton around the plant -----------------------------------------------
+# -- the plant's stepper for the controller loop ------------------------------------
 @njit(cache=True)
-def run_events(t, p, md, R, guard, V, Td, x0, log, closed_loop, start, first, dir0, continuous,
-               current, omega, delta, dirs) -> None:
-    """Event-driven exact integration at instants ``t`` (stick/slip, backlash edges, continuous guard, delays).
+def event_step(pl: Plant, x, k, tk, t_next, u_m, arrive, volts, head, tail, armed, guard):
+    """From tk to t_next through the commands landing inside (``pipeline.model.loop``'s stepper).
 
-    At each sample the controller decides (``kernels.decide``); a command
-    reaches the motor Td later (a queue of arrival times and voltages).  Each
-    step first tries the cached whole step of the regime (``quick_entry``), and
-    hands over to ``advance`` when that may hold an event.  The continuous
-    controller reverses the instant theta reaches the guard, between samples.
+    Each piece first tries the cached whole step of the regime (``quick_entry``)
+    and hands over to ``advance`` when that may hold an event; returns early,
+    with ``hit``, where the armed continuous guard is reached.
     """
-    pl = new_plant(p, md)
-    x = (x0[0], x0[1], x0[2])
-    reset(pl, x)
-    n = len(t)
-    arrive = np.empty(n + 16)
-    volts = np.empty(n + 16)
-    head = tail = 0
-    d = 0
-    u_m = 0.0
-    for k in range(n):
-        current[k], omega[k], delta[k] = x
-        dn = decide(k, d, x[2] / R, guard, log, closed_loop, start, first, dir0)
-        if dn != d or k == 0:
-            arrive, volts, head, tail = _enqueue(arrive, volts, head, tail, t[k] + Td, dn * V)
-        d = dn
-        dirs[k] = d
-        if k + 1 == n:
-            break
-        tk, t_next = t[k], t[k + 1]
-        armed = d if continuous and k >= start else 0
-        while True:
-            while head < tail and arrive[head] <= tk + TIME_EPS:
-                u_m = volts[head]
-                head += 1
-            if head < tail and arrive[head] < t_next - TIME_EPS:
-                stop = arrive[head]               # a delayed command lands inside this step
-            else:
-                stop = t_next
-            # lengths rounded like the step caches' keys, so repeated spacings hit the same entry
-            L = step_key(stop - tk)
-            e = quick_entry(pl, u_m, L, armed, guard)
-            if len(e):
-                xq, ok = quick_step(pl, e, x)
-                if ok:
-                    x, tk = xq, stop
-                    if stop == t_next:
-                        break
-                    continue
-            x, tk, hit = advance(pl, x, tk, stop, u_m, armed, guard)
-            if hit:
-                # the continuous controller reverses the instant theta reaches the guard
-                d = armed = -d
-                arrive, volts, head, tail = _enqueue(arrive, volts, head, tail, tk + Td, d * V)
-            elif stop == t_next:
-                break
+    while True:
+        while head < tail and arrive[head] <= tk + TIME_EPS:
+            u_m = volts[head]
+            head += 1
+        if head < tail and arrive[head] < t_next - TIME_EPS:
+            stop = arrive[head]               # a delayed command lands inside this step
+        else:
+            stop = t_next
+        # lengths rounded like the step caches' keys, so repeated spacings hit the same entry
+        L = step_key(stop - tk)
+        e = quick_entry(pl, u_m, L, armed, guard)
+        if len(e):
+            xq, ok = quick_step(pl, e, x)
+            if ok:
+                x, tk = xq, stop
+                if stop == t_next:
+                    return x, tk, u_m, head, False
+                continue
+        x, tk, hit = advance(pl, x, tk, stop, u_m, armed, guard)
+        if hit or stop == t_next:
+            return x, tk, u_m, head, hit
+
+
+STEPPERS[Plant] = event_step
 
 
 @njit(cache=True)
-def _enqueue(arrive: np.ndarray, volts: np.ndarray, head: int, tail: int, at: float, v: float):
-    """Append (at, v) to the commands on their way; continuous-guard reversals may outgrow the first size."""
-    if tail == len(arrive):
-        live = tail - head
-        grown_at, grown_v = np.empty(2 * live + 16), np.empty(2 * live + 16)
-        grown_at[:live], grown_v[:live] = arrive[head:tail], volts[head:tail]
-        arrive, volts, head, tail = grown_at, grown_v, 0, live
-    arrive[tail] = at
-    volts[tail] = v
-    return arrive, volts, head, tail + 1
+def run_events(t, p, md, R, guard, V, v_bias, Td, x0, log, closed_loop, start, first, dir0, continuous,
+               current, omega, delta, dirs) -> None:
+    """The automaton on the event-driven plant (stick/slip, backlash edges, the continuous guard)."""
+    pl = new_plant(p, md)
+    reset(pl, (x0[0], x0[1], x0[2]))
+    run(pl, t, R, guard, V, v_bias, Td, x0, log, closed_loop, start, first, dir0, continuous,
+        current, omega, delta, dirs)

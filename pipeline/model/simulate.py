@@ -7,17 +7,19 @@ command until the next sample; the reset is the identity.  The command decided
 at sample k reaches the motor at t_k + Td (loop delay; 0 by default), and the
 motor is off until the first command arrives.
 
-Two exact integrators behind one ``simulate``, both compiled with numba (this
-module checks the arguments and packages the result):
+One controller loop (``pipeline.model.loop``) over two exact plant steppers,
+compiled with numba (this module checks the arguments and packages the result):
 
-- linear plant (no Coulomb friction, no backlash) with the sampled guard:
-  ``pipeline.model.kernels`` -- one matrix exponential per distinct step
-  length (``pipeline.model.linear``), then plain float arithmetic per sample
-  (500 samples in ~0.06 ms, most of it Python around the kernel);
-- otherwise ``pipeline.model.nonsmooth``: event-driven, stick/slip, velocity
-  zero crossings, backlash edges and (``guard="continuous"``) the guard
-  crossing itself located on the closed-form solution (~0.6 ms with every effect).
+- linear plant (no Coulomb friction, no dead zone) with the sampled guard:
+  ``linear.run_zoh`` -- one matrix exponential per distinct step length, then
+  plain float arithmetic per sample;
+- otherwise ``nonsmooth.run_events``: event-driven, stick/slip, velocity zero
+  crossings, backlash edges and (``guard="continuous"``) the guard crossing
+  itself located on the closed-form solution.
 
+A constant external torque ``tau`` enters as the current that would cancel it:
+with I' = I + tau/Kt, eq. (4) loses the torque and eq. (2) gains the voltage
+Ra tau/Kt (``_torque_shift``), so both steppers run the base plant unchanged.
 ``I0`` only touches the output: ``current_measured = current + I0``.
 """
 
@@ -28,15 +30,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipeline.errors import PdrError
-from pipeline.model.effects import PlantSpec
-from pipeline.model import kernels
-from pipeline.model.kernels import linear_outputs, run_linear_batch
+from pipeline.model import loop
+from pipeline.model.linear import run_zoh
 from pipeline.model.nonsmooth import plant_constants, run_events
+from pipeline.model.spec import PlantSpec
 
 GUARDS = ("sampled", "continuous")
-# The sketch's rule (``kernels.next_dir``) as plain Python, for callers that apply it sample by sample
+# The sketch's rule (``loop.next_dir``) as plain Python, for callers that apply it sample by sample
 # outside a kernel (derive's phases, the rig's reference plant): same source, no dispatch per call.
-next_dir = kernels.next_dir.py_func
+next_dir = loop.next_dir.py_func
 _NO_LOG = np.zeros(0, dtype=np.int8)
 
 
@@ -135,26 +137,38 @@ def simulate(spec: PlantSpec, t: np.ndarray | None = None, *, duration: float = 
     return _run_events(spec, plan, x, continuous=guard == "continuous" and closed_loop)
 
 
+def _torque_shift(spec: PlantSpec) -> tuple[float, float]:
+    """(current shift tau/Kt [A], voltage Ra tau/Kt [V]) that carry a constant torque tau (module doc)."""
+    if spec.torque == 0.0:
+        return 0.0, 0.0
+    shift = spec.torque / spec.params.Kt
+    return shift, spec.params.Ra * shift
+
+
 def _run_linear(spec: PlantSpec, plan: _Plan, x: np.ndarray) -> SimResult:
-    """Exact ZOH stepping in the compiled kernel (``kernels.run_linear_batch`` with one set)."""
+    """Exact ZOH stepping in the compiled kernel (``linear.run_zoh``)."""
     A, B = spec.params.state_matrices()
-    current, omega, delta, dirs = linear_outputs(1, len(plan.t))
-    run_linear_batch(plan.t, A[None], B[None], np.array([spec.params.R], dtype=float),
-                     np.array([spec.guard_rad], dtype=float), np.array([spec.v_drive], dtype=float),
-                     np.array([spec.Td], dtype=float), x, plan.log, plan.closed_loop, plan.start, plan.first,
-                     plan.dir0, current, omega, delta, dirs)
-    return _result(spec, plan.t, current[0], omega[0], delta[0], dirs[0])
+    shift, v_bias = _torque_shift(spec)
+    x[0] += shift
+    n = len(plan.t)
+    current, omega, delta = np.empty(n), np.empty(n), np.empty(n)
+    dirs = np.empty(n, dtype=np.int8)
+    run_zoh(plan.t, A, B, float(spec.params.R), float(spec.guard_rad), float(spec.v_drive), v_bias, float(spec.Td),
+            x, plan.log, plan.closed_loop, plan.start, plan.first, plan.dir0, current, omega, delta, dirs)
+    return _result(spec, plan.t, current - shift, omega, delta, dirs)
 
 
 def _run_events(spec: PlantSpec, plan: _Plan, x: np.ndarray, *, continuous: bool) -> SimResult:
     """Event-driven exact integration in the compiled kernel (``nonsmooth.run_events``)."""
+    shift, v_bias = _torque_shift(spec)
+    x[0] += shift
     n = len(plan.t)
     current, omega, delta = np.empty(n), np.empty(n), np.empty(n)
     dirs = np.empty(n, dtype=np.int8)
     run_events(plan.t, *plant_constants(spec), float(spec.params.R), float(spec.guard_rad), float(spec.v_drive),
-               float(spec.Td), x, plan.log, plan.closed_loop, plan.start, plan.first, plan.dir0, continuous,
+               v_bias, float(spec.Td), x, plan.log, plan.closed_loop, plan.start, plan.first, plan.dir0, continuous,
                current, omega, delta, dirs)
-    return _result(spec, plan.t, current, omega, delta, dirs)
+    return _result(spec, plan.t, current - shift, omega, delta, dirs)
 
 
 def _result(spec: PlantSpec, t, current, omega, delta, dirs) -> SimResult:

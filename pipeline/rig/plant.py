@@ -81,6 +81,7 @@ class _Plant:
         self.J, self.b, self.R = p.J, p.b, p.R
         self.Ks = p.R * p.R * (p.K1 + p.K2)          # N m/rad: R*(K1+K2)*delta = Ks*theta (eq. 4)
         self.Tc, self.half_gap = spec.Tc, 0.5 * spec.gap
+        self.tau = spec.torque                        # N m  constant external torque (towards +theta)
 
     def spring_torque(self, theta: float, region: int) -> float:
         if self.half_gap == 0.0:
@@ -97,8 +98,8 @@ class _Plant:
         return 0
 
     def net_torque(self, x: np.ndarray, region: int) -> float:
-        """Kt*I - Ks*dz(theta): what Coulomb friction has to hold at w = 0."""
-        return self.Kt * x[0] - self.spring_torque(x[2] / self.R, region)
+        """Kt*I - Ks*dz(theta) + tau: what Coulomb friction has to hold at w = 0."""
+        return self.Kt * x[0] - self.spring_torque(x[2] / self.R, region) + self.tau
 
     def rhs(self, u: float, slip: int, region: int):
         La, Ra, Ke, Kt, J, b, R = self.La, self.Ra, self.Ke, self.Kt, self.J, self.b, self.R
@@ -107,12 +108,12 @@ class _Plant:
                 return [(u - Ra * x[0]) / La, 0.0, 0.0]     # w = 0: no back-EMF, no motion
             return stuck
         coulomb = self.Tc * slip
-        Ks, hg = self.Ks, self.half_gap
+        Ks, hg, tau = self.Ks, self.half_gap, self.tau
         if hg == 0.0:
             def f(t: float, x: np.ndarray) -> list[float]:
                 I, w, d = x
                 return [(u - Ra * I - Ke * w) / La,                          # (2)
-                        (Kt * I - b * w - Ks * d / R - coulomb) / J,         # (4), (8) + Coulomb
+                        (Kt * I - b * w - Ks * d / R - coulomb + tau) / J,   # (4), (8) + Coulomb, torque
                         R * w]                                               # (5)
             return f
         off = region * hg
@@ -121,7 +122,7 @@ class _Plant:
         def g(t: float, x: np.ndarray) -> list[float]:
             I, w, d = x
             return [(u - Ra * I - Ke * w) / La,
-                    (Kt * I - b * w - k * (d / R - off) - coulomb) / J,      # springs on dz(theta)
+                    (Kt * I - b * w - k * (d / R - off) - coulomb + tau) / J,  # springs on dz(theta)
                     R * w]
         return g
 

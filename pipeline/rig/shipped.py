@@ -18,7 +18,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from pipeline.config import EncoderConfig, default_config
-from pipeline.model.effects import CoulombFriction, LoopDelay
+from pipeline.model.effects import make_effect
 from pipeline.rig.recording import RigSetup, make_recording, write_recording
 from pipeline.rig.serial import Artefacts
 
@@ -35,7 +35,7 @@ SHIPPED: dict[str, tuple[str, RigSetup]] = {
     "friction_declared": (
         "a rig with Coulomb friction and a one-period loop delay, both declared in its TOML [effects]",
         RigSetup(seed=303, config=replace(default_config(),
-                                          effects=(CoulombFriction(Tc=6e-4), LoopDelay(Td=0.05))))),
+                                          effects=(make_effect("coulomb_friction", {"Tc": 6e-4}), make_effect("loop_delay", {"Td": 0.05}))))),
     "micros_dialect": (
         "a sketch printing micros() under its own column names, an x2-decoded encoder "
         "(3266.56 counts/rev), zero_v = \"auto\" from the motor-off pre-roll",

@@ -68,9 +68,9 @@ def test_applied_voltage_with_a_loop_delay():
 
 def test_balance_closes_with_a_loop_delay():
     from pipeline.derive.energy import applied_voltage
-    from pipeline.model.effects import LoopDelay
+    from pipeline.model.effects import make_effect
 
-    spec = LoopDelay(Td=0.02).apply(default_config().plant_spec())
+    spec = make_effect("loop_delay", {"Td": 0.02}).apply(default_config().plant_spec())
     t = np.arange(0.0, 10.0, 0.05)
     r = simulate(spec, t)
     u = applied_voltage(r.t, r.dir, spec.v_drive, spec.Td)

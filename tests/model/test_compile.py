@@ -11,13 +11,13 @@ import numpy as np
 import pandas as pd
 
 from pipeline.config import default_config
-from pipeline.model import kernels, nonsmooth
+from pipeline.model import linear, nonsmooth
 from pipeline.model.compile import compile_kernels
-from pipeline.model.effects import CoulombFriction, build_spec
+from pipeline.model.effects import build_spec, make_effect
 from pipeline.model.simulate import simulate
 from pipeline.validate.compare import simulate_both
 
-DISPATCHERS = {"run_linear_batch": kernels.run_linear_batch, "run_events": nonsmooth.run_events}
+DISPATCHERS = {"run_zoh": linear.run_zoh, "run_events": nonsmooth.run_events}
 
 
 def _versions() -> dict[str, int]:
@@ -37,6 +37,6 @@ def test_read_only_and_strided_inputs_reuse_the_compiled_kernels():
     strided = np.repeat(sim.t, 2)[::2]                         # a non-contiguous view
     strided.flags.writeable = False
     simulate(spec, strided, dir_log=sim.dir, closed_loop=False)
-    coulomb = build_spec(cfg.model, cfg.controller, cfg.drive, (CoulombFriction(6e-4),))
+    coulomb = build_spec(cfg.model, cfg.controller, cfg.drive, (make_effect("coulomb_friction", {"Tc": 6e-4}),))
     simulate(coulomb, strided)
     assert _versions() == before

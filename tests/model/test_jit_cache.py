@@ -16,8 +16,8 @@ def _tree(tmp_path: Path) -> Path:
 
 
 def _cache_files(tmp_path: Path) -> list[Path]:
-    files = [tmp_path / "__pycache__" / f for f in ("kernels.run_linear_batch-54.py311.nbi",
-                                                     "kernels.run_linear_batch-54.py311.1.nbc",
+    files = [tmp_path / "__pycache__" / f for f in ("loop.run-80.py311.nbi",
+                                                     "loop.run-80.py311.1.nbc",
                                                      "linear.phi_gamma_into-38.py311.nbi")]
     for f in files:
         f.write_bytes(b"compiled")
@@ -35,7 +35,7 @@ def test_a_change_to_a_callee_file_drops_the_callers_cache(tmp_path):
     with open(tree / "linear.py", "a") as fh:               # only the callee changes
         fh.write("\n# edited\n")
     assert drop_stale_jit_cache(tree)
-    assert not any(f.exists() for f in cached)              # the kernels.py caches go too
+    assert not any(f.exists() for f in cached)              # the loop.py caches go too
     assert other.exists()
     assert not drop_stale_jit_cache(tree)
 

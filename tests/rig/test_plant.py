@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from pipeline.config import default_config
-from pipeline.model.effects import Backlash, CoulombFriction, LoopDelay
+from pipeline.model.effects import CATALOGUE, make_effect
 from pipeline.model.params import ModelParams
 from pipeline.derive.energy import paper_energy_j
 from pipeline.model.simulate import next_dir, sample_times
@@ -97,7 +97,7 @@ def test_agrees_with_fine_rk4_on_a_linear_run():
 
 def test_backlash_agrees_with_fine_rk4():
     gap = 0.2
-    spec = spec_with(Backlash(gap=gap))
+    spec = spec_with(make_effect("backlash", {"gap": gap}))
     t, ref = rk4_sampled(spec, 2.0, 0.05, substeps=500, gap=gap)   # 0.1 ms steps; RK4 is O(h^2) at a kink
     r = simulate_reference(spec, t)
     assert np.max(np.abs(r.theta - ref[:, 2] / spec.params.R)) < 1e-6
@@ -106,7 +106,7 @@ def test_backlash_agrees_with_fine_rk4():
 
 def test_backlash_dead_zone_holds_no_spring_torque():
     gap = 0.3
-    spec = spec_with(Backlash(gap=gap))
+    spec = spec_with(make_effect("backlash", {"gap": gap}))
     t = sample_times(4.0, 0.05)
     off = np.zeros(len(t), dtype=int)
     # at rest inside the play and motor off: nothing pushes, nothing moves
@@ -120,7 +120,7 @@ def test_backlash_dead_zone_holds_no_spring_torque():
 
 def test_coulomb_stick_holds_while_torque_below_tc():
     Tc = 2e-3
-    spec = spec_with(CoulombFriction(Tc=Tc))
+    spec = spec_with(make_effect("coulomb_friction", {"Tc": Tc}))
     t = sample_times(12.0, 0.05)
     dir_log = np.where(t < 3.0, 1, 0)                            # drive 3 s, then motor off
     run = run_reference(spec, t, dir_log=dir_log, closed_loop=False)
@@ -143,14 +143,14 @@ def test_coulomb_stick_holds_while_torque_below_tc():
 
 
 def test_coulomb_larger_than_motor_torque_never_moves():
-    spec = spec_with(CoulombFriction(Tc=0.05))                  # stall torque Kt*V/Ra = 0.042 N m < Tc
+    spec = spec_with(CATALOGUE["coulomb_friction"](Tc=0.05))                # stall torque Kt*V/Ra = 0.042 N m < Tc
     r = simulate_reference(spec, sample_times(5.0, 0.05))
     assert np.all(r.theta == 0.0) and np.all(r.omega == 0.0) and r.current[-1] > 1.0
 
 
 def test_loop_delay_reaches_the_motor_td_later():
     Td = 0.2
-    spec = spec_with(LoopDelay(Td=Td))
+    spec = spec_with(make_effect("loop_delay", {"Td": Td}))
     t = sample_times(24.95, 0.05)
     r = simulate_reference(spec, t)
     before = t < Td - 1e-9

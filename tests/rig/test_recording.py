@@ -13,7 +13,7 @@ import pytest
 
 from pipeline.config import default_config, resolve_config
 from pipeline.errors import PdrError
-from pipeline.model.effects import CoulombFriction, CurrentSensorOffset, LoopDelay
+from pipeline.model.effects import make_effect
 from pipeline.rig.recording import RigSetup, make_recording, write_recording
 from pipeline.rig.serial import Artefacts
 from tests.rig.csvread import as_row, lines_of
@@ -28,7 +28,7 @@ def paper():
 
 
 def test_same_seed_same_bytes_everywhere(tmp_path):
-    setup = RigSetup(effects=(CoulombFriction(Tc=5e-4),), artefacts=ALL_ARTEFACTS)
+    setup = RigSetup(effects=(make_effect("coulomb_friction", {"Tc": 5e-4}),), artefacts=ALL_ARTEFACTS)
     a, b = make_recording(setup, seed=3), make_recording(setup, seed=3)
     assert a.csv_bytes == b.csv_bytes and a.toml_text == b.toml_text
     pa, pb = write_recording(a, tmp_path / "a", "x"), write_recording(b, tmp_path / "b", "x")
@@ -67,8 +67,8 @@ def test_truth_records_the_plant_and_turning_points(paper):
 
 
 def test_toml_is_the_believed_rig_without_hidden_effects(tmp_path):
-    believed = replace(default_config(), effects=(LoopDelay(Td=0.05),))
-    rec = make_recording(RigSetup(config=believed, effects=(CoulombFriction(Tc=6e-4),)), seed=1)
+    believed = replace(default_config(), effects=(make_effect("loop_delay", {"Td": 0.05}),))
+    rec = make_recording(RigSetup(config=believed, effects=(make_effect("coulomb_friction", {"Tc": 6e-4}),)), seed=1)
     path = tmp_path / "r.toml"
     path.write_text(rec.toml_text)
     cfg = resolve_config([path])
@@ -82,7 +82,7 @@ def test_toml_is_the_believed_rig_without_hidden_effects(tmp_path):
 def test_hidden_sensor_offset_makes_the_written_zero_wrong_by_i0_s(tmp_path):
     I0 = 0.15
     plain = make_recording(RigSetup(), seed=8)
-    off = make_recording(RigSetup(effects=(CurrentSensorOffset(I0=I0),)), seed=8)
+    off = make_recording(RigSetup(effects=(make_effect("current_sensor_offset", {"I0": I0}),)), seed=8)
     S = 0.185
     z_plain, z_off = plain.truth_meta["sensor"]["zero_v_written"], off.truth_meta["sensor"]["zero_v_written"]
     assert z_plain - z_off == pytest.approx(I0 * S, abs=1e-4)
@@ -125,6 +125,6 @@ def test_write_recording_layout_and_truth_read_back(tmp_path, paper):
 
 
 def test_stick_samples_flagged_in_truth():
-    rec = make_recording(RigSetup(effects=(CoulombFriction(Tc=3e-3),), duration_s=8.0), seed=1)
+    rec = make_recording(RigSetup(effects=(make_effect("coulomb_friction", {"Tc": 3e-3}),), duration_s=8.0), seed=1)
     stuck = rec.truth[rec.truth["stuck"]]
     assert len(stuck) > 5 and (stuck["omega_rad_s"] == 0.0).all()

@@ -1,0 +1,24 @@
+"""Backlash (MODEL.md): play between pinion and racks, a dead zone of the springs centred on theta = 0."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import ClassVar
+
+from pipeline.model.effects.base import Effect, Param, geometric_scan
+from pipeline.model.spec import PlantSpec
+
+
+@dataclass(frozen=True)
+class Backlash(Effect):
+    gap: float
+    name: ClassVar[str] = "backlash"
+    ORDER: ClassVar[int] = 4
+    WHAT: ClassVar[str] = "play between pinion and racks: the springs act on R*dz(theta), a dead zone of width gap around 0"
+    PARAMS: ClassVar[tuple[Param, ...]] = (
+        Param("gap", "rad", bounds=(0.0, 0.5), absent=0.0, typical=0.08,
+              scan=geometric_scan(0.4)),)
+    SIGNATURE: ClassVar[str] = "after_zero_crossing"
+
+    def apply(self, spec: PlantSpec) -> PlantSpec:
+        return replace(spec, gap=spec.gap + self.gap)

@@ -1,0 +1,24 @@
+"""Driver voltage drop (MODEL.md): the H-bridge's loss, so the motor sees less than V_in in both modes."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import ClassVar
+
+from pipeline.model.effects.base import Effect, Param, geometric_scan
+from pipeline.model.spec import PlantSpec
+
+
+@dataclass(frozen=True)
+class DriverVoltageDrop(Effect):
+    Vd: float
+    name: ClassVar[str] = "driver_voltage_drop"
+    ORDER: ClassVar[int] = 3
+    WHAT: ClassVar[str] = "the H-bridge loses Vd: u = sign * max(V_in - Vd, 0)"
+    PARAMS: ClassVar[tuple[Param, ...]] = (
+        Param("Vd", "V", bounds=(0.0, 6.0), absent=0.0, typical=1.2,
+              scan=geometric_scan(5.0)),)
+    SIGNATURE: ClassVar[str] = "everywhere"
+
+    def apply(self, spec: PlantSpec) -> PlantSpec:
+        return replace(spec, v_drive=max(spec.v_drive - self.Vd, 0.0))

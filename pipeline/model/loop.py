@@ -1,0 +1,126 @@
+"""The controller around any plant, written once: the sketch's sampled guard, the motor-off start, the
+command queue of the loop delay (shared/MODEL.md, hybrid automaton).  Compiled with numba.
+
+At each sample instant the controller reads theta and decides the command
+(``decide``: the log before the sketch starts or in replay, then the sampled
+guard); a decision that changes the command reaches the motor ``Td`` later, so
+the commands on their way form a queue of (arrival, voltage).  Between two
+samples a *plant stepper* moves the state with the motor voltage piecewise
+constant: ``linear.zoh_step`` (exact zero-order-hold steps of the linear
+modes) or ``nonsmooth.event_step`` (event-located steps of the non-smooth
+regimes).  A stepper may stop early where the continuous guard is reached;
+the controller then reverses at once.
+
+A stepper is ``step(plant, x, k, tk, t_next, u_m, arrive, volts, head, tail, armed, guard)
+-> (x, t reached, u_m, head, hit)``: it applies the queued commands landing
+inside (tk, t_next) and returns at t_next unless ``hit``.  Each plant module
+registers its stepper for its plant's NamedTuple class (``STEPPERS``); ``run``
+calls ``step``, which numba resolves by the plant's type when it compiles, so
+there is one loop, compiled (and cached) once per plant.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+from numba.extending import overload
+
+# Two instants closer than this are the same instant (float noise of t_ms / 1000 sums).
+TIME_EPS = 1e-12
+
+
+@njit(cache=True)
+def next_dir(current_dir: int, theta: float, guard: float) -> int:
+    """The sketch's rule: reverse when the angle has reached the guard in the direction of motion."""
+    if current_dir >= 0 and theta >= guard:
+        return -1
+    if current_dir <= 0 and theta <= -guard:
+        return 1
+    return current_dir if current_dir != 0 else 1
+
+
+@njit(cache=True)
+def decide(k: int, d_prev: int, theta: float, guard: float, log: np.ndarray, closed_loop: bool,
+           start: int, first: int, dir0: int) -> int:
+    """The command at sample k: the log (replay, or before the sketch starts), then the sampled guard.
+
+    ``start`` is the first sample the controller decides and ``first`` its mode
+    there (0: decide by ``next_dir`` from ``dir0``); see ``simulate._plan``.
+    """
+    if not closed_loop or k < start:
+        return int(log[k])
+    if k == start:
+        return first if first != 0 else next_dir(dir0, theta, guard)
+    return next_dir(d_prev, theta, guard)
+
+
+@njit(cache=True)
+def enqueue(arrive: np.ndarray, volts: np.ndarray, head: int, tail: int, at: float, v: float):
+    """Append (at, v) to the commands on their way; continuous-guard reversals may outgrow the first size."""
+    if tail == len(arrive):
+        live = tail - head
+        grown_at, grown_v = np.empty(2 * live + 16), np.empty(2 * live + 16)
+        grown_at[:live], grown_v[:live] = arrive[head:tail], volts[head:tail]
+        arrive, volts, head, tail = grown_at, grown_v, 0, live
+    arrive[tail] = at
+    volts[tail] = v
+    return arrive, volts, head, tail + 1
+
+
+# plant NamedTuple class -> its compiled stepper (filled by linear.py and nonsmooth.py)
+STEPPERS: dict[type, object] = {}
+
+
+def step(plant, x, k, tk, t_next, u_m, arrive, volts, head, tail, armed, guard):
+    """Advance ``plant`` over one sample step: the stepper registered for its type (compiled code only)."""
+    raise NotImplementedError("plant steppers run inside compiled code")
+
+
+@overload(step)
+def _stepper_of(plant, x, k, tk, t_next, u_m, arrive, volts, head, tail, armed, guard):
+    stepper = STEPPERS.get(getattr(plant, "instance_class", None))
+    if stepper is None:
+        return None
+
+    def impl(plant, x, k, tk, t_next, u_m, arrive, volts, head, tail, armed, guard):
+        return stepper(plant, x, k, tk, t_next, u_m, arrive, volts, head, tail, armed, guard)
+    return impl
+
+
+@njit(cache=True)
+def run(plant, t, R, guard, V, v_bias, Td, x0, log, closed_loop, start, first, dir0, continuous,
+        current, omega, delta, dirs) -> None:
+    """The automaton at instants ``t``: fills current, omega, delta and dirs (the command decided per sample).
+
+    The motor sees ``d * V + v_bias`` once command d has arrived, ``v_bias``
+    before the first one (motor off); ``v_bias`` is how a constant torque
+    enters (``simulate``).  theta = delta / R (eq. 7).
+    """
+    n = len(t)
+    arrive = np.empty(n + 16)
+    volts = np.empty(n + 16)
+    head = tail = 0
+    x = (x0[0], x0[1], x0[2])
+    d = 0
+    u_m = v_bias
+    for k in range(n):
+        current[k], omega[k], delta[k] = x
+        dn = decide(k, d, x[2] / R, guard, log, closed_loop, start, first, dir0)
+        if dn != d or k == 0:
+            arrive, volts, head, tail = enqueue(arrive, volts, head, tail, t[k] + Td, dn * V + v_bias)
+        d = dn
+        dirs[k] = d
+        if k + 1 == n:
+            break
+        tk, t_next = t[k], t[k + 1]
+        armed = d if continuous and k >= start else 0
+        while True:
+            while head < tail and arrive[head] <= tk + TIME_EPS:     # landed by the start of the step
+                u_m = volts[head]
+                head += 1
+            x, tk, u_m, head, hit = step(plant, x, k, tk, t_next, u_m, arrive, volts, head, tail, armed, guard)
+            if not hit:
+                break
+            # the continuous controller reverses the instant theta reaches the guard
+            d = armed = -d
+            arrive, volts, head, tail = enqueue(arrive, volts, head, tail, tk + Td, d * V + v_bias)
