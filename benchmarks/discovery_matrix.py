@@ -4,8 +4,7 @@ Every catalogued effect at two magnitudes and two current-noise levels, over
 seeds, recorded by the virtual rig (its own reference plant and sensor chain,
 independent of the fast simulator the fit uses), then ingested and derived like
 any recording; plus stacked pairs, clean recordings, recordings without a
-logged command, and an effect outside the catalogue (a constant torque from
-unequal racks, injected with a custom plant).  Prints a confusion matrix, the
+logged command, and an effect outside the catalogue (a cogging torque, injected with a custom plant).  Prints a confusion matrix, the
 parameter errors, the MSE reduction and the time per recording.
 
     python -m benchmarks.discovery_matrix [--seeds N] [--quick]
@@ -45,7 +44,7 @@ PAIRS = (("viscous_friction", "current_sensor_offset"), ("coulomb_friction", "lo
          ("spring_stiffness", "backlash"), ("driver_voltage_drop", "rack_inertia"),
          ("driver_voltage_drop", "spring_stiffness"), ("rack_inertia", "spring_stiffness"),
          ("backlash", "loop_delay"))
-TORQUES = (8e-4, 2e-3)        # N m, out of the catalogue
+TORQUES = (2e-3, 3e-3)        # N m, cogging amplitude: out of the catalogue
 CURRENT_EFFECTS = {"current_sensor_offset"}
 _NUMBER = itertools.count()
 
@@ -88,10 +87,10 @@ def cases(seeds: int, quick: bool) -> list[Case]:
 def recording(case: Case, work: Path) -> tuple[pd.DataFrame, object]:
     """Kinematics and rig config of one case, through the rig (or the custom plant), ingest, derive."""
     from pipeline.rig.serial import Artefacts
-    from tests.discover.synthetic import constant_torque_kinematics, rig_kinematics
+    from tests.discover.synthetic import cogging_kinematics, rig_kinematics
 
     if case.torque:
-        return constant_torque_kinematics(case.torque, seed=100 + case.seed, noise_v=NOISE_V[case.noise])
+        return cogging_kinematics(case.torque, seed=100 + case.seed, noise_v=NOISE_V[case.noise])
     base = default_config()
     if case.paper_base:
         base = replace(base, model=base.model.with_(b=0.0))

@@ -3,10 +3,10 @@
 ``rig_kinematics``: the virtual rig (its own reference plant), written as CSV + TOML,
 ingested and derived exactly like a user's recording.
 
-``constant_torque_kinematics``: an effect *outside* the catalogue, a constant torque on
-the pinion (unequal racks' weight), which the rig cannot produce: a small custom plant
-(exact discretisation with the torque as a second input), seen through the rig's own
-sensor chain (``pipeline.rig.sensors``) and derived by the derive stage.
+``cogging_kinematics``: an effect *outside* the catalogue, a cogging torque on the pinion
+(``J dw/dt += Tq sin(2 pi theta / pitch)``), which the rig cannot produce: a small custom
+plant integrated by ``solve_ivp`` between samples, seen through the rig's own sensor chain
+(``pipeline.rig.sensors``) and derived by the derive stage.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from scipy.linalg import expm
+from scipy.integrate import solve_ivp
 
 from pipeline.config import RigConfig, default_config
 from pipeline.derive.stage import derive_tables
@@ -42,9 +42,12 @@ def rig_kinematics(effects: tuple[Effect, ...] = (), *, config: RigConfig | None
     return pd.read_parquet(paths.kinematics), load_config(paths), work / "raw" / "rec.csv"
 
 
-def constant_torque_kinematics(torque_nm: float, *, seed: int = 0, noise_v: float = 5.0 / 1024,
-                               config: RigConfig | None = None, duration: float = 24.95) -> tuple[pd.DataFrame, RigConfig]:
-    """A closed-loop run whose pinion feels ``J dw/dt += torque_nm`` (not a catalogued effect)."""
+COGGING_PITCH_RAD = 0.1       # one cogging period per 0.1 rad of pinion angle
+
+
+def cogging_kinematics(torque_nm: float, *, seed: int = 0, noise_v: float = 5.0 / 1024,
+                       config: RigConfig | None = None, duration: float = 24.95) -> tuple[pd.DataFrame, RigConfig]:
+    """A closed-loop run whose pinion feels ``J dw/dt += torque_nm sin(2 pi theta / pitch)`` (no catalogued effect)."""
     cfg = config if config is not None else default_config()
     spec = cfg.plant_spec()
     p = spec.params
@@ -62,11 +65,12 @@ def constant_torque_kinematics(torque_nm: float, *, seed: int = 0, noise_v: floa
         d = next_dir(d, x[2] / p.R, spec.guard_rad)
         dirs[k] = d
         if k + 1 < n:
-            h = t[k + 1] - t[k]
-            M = np.zeros((4, 4))
-            M[:3, :3] = A * h
-            M[:3, 3] = (B * d * spec.v_drive + np.array([0.0, torque_nm / p.J, 0.0])) * h
-            x = expm(M)[:3, :] @ np.append(x, 1.0)
+            u = d * spec.v_drive
+
+            def rhs(_t, y, u=u):
+                cog = torque_nm * np.sin(2.0 * np.pi * (y[2] / p.R) / COGGING_PITCH_RAD) / p.J
+                return A @ y + B * u + np.array([0.0, cog, 0.0])
+            x = solve_ivp(rhs, (t[k], t[k + 1]), x, method="DOP853", rtol=1e-9, atol=1e-12).y[:, -1]
     cs = cfg.current_sensor
     counts = sensors.encoder_counts(X[:, 2] / p.R, cfg.encoder.counts_per_rev)
     adc = sensors.adc_read(sensors.acs712_volts(X[:, 0], 2.5, cs.sensitivity_v_per_a, noise_v, rng),
