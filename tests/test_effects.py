@@ -4,22 +4,7 @@ import pytest
 
 from pipeline.config import default_config
 from pipeline.errors import ConfigError
-from pipeline.model.effects import CATALOGUE, make_effect, parameter_names
-
-MODEL_MD_EFFECTS = {
-    "viscous_friction": ("b", "N m s/rad"), "coulomb_friction": ("Tc", "N m"),
-    "driver_voltage_drop": ("Vd", "V"), "backlash": ("gap", "rad"), "loop_delay": ("Td", "s"),
-    "current_sensor_offset": ("I0", "A"), "rack_inertia": ("Jr", "kg m^2"),
-    "spring_stiffness": ("k_scale", "-"),
-}
-
-
-def test_catalogue_is_model_md():
-    assert set(CATALOGUE) == set(MODEL_MD_EFFECTS)
-    for name, (param, unit) in MODEL_MD_EFFECTS.items():
-        assert parameter_names(name) == (param,)
-        assert CATALOGUE[name].UNITS[param] == unit
-
+from pipeline.model.effects import make_effect, parameter_names
 
 @pytest.mark.parametrize("name, value, field, expected", [
     ("viscous_friction", 7.7e-4, "b", 7.7e-4 + 7.7e-4),          # adds to the model's b

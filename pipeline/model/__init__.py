@@ -3,8 +3,8 @@
 numba (``cache=True``) invalidates a cached function only when its own file
 changes, not when a function it calls from another file does: after an edit
 to ``loop.py`` the cached ``linear.run_zoh`` would go on running the old
-controller loop it was compiled with.  The kernels span four files, so a
-digest of all four is kept beside the caches, and any change removes
+controller loop it was compiled with.  The kernels span five files, so a
+digest of all five is kept beside the caches, and any change removes
 every cache of those files (the next call recompiles, ~30 s).
 """
 
@@ -14,7 +14,7 @@ import hashlib
 import os
 from pathlib import Path
 
-KERNEL_SOURCES = ("loop.py", "linear.py", "modal.py", "nonsmooth.py")
+KERNEL_SOURCES = ("loop.py", "linear.py", "modal.py", "nonsmooth.py", "event_step.py")
 
 
 def drop_stale_jit_cache(here: Path = Path(__file__).resolve().parent) -> bool:

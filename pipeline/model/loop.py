@@ -7,7 +7,7 @@ guard); a decision that changes the command reaches the motor ``Td`` later, so
 the commands on their way form a queue of (arrival, voltage).  Between two
 samples a *plant stepper* moves the state with the motor voltage piecewise
 constant: ``linear.zoh_step`` (exact zero-order-hold steps of the linear
-modes) or ``nonsmooth.event_step`` (event-located steps of the non-smooth
+modes) or ``event_step.event_step`` (event-located steps of the non-smooth
 regimes).  A stepper may stop early where the continuous guard is reached;
 the controller then reverses at once.
 

@@ -13,7 +13,7 @@ compiled with numba (this module checks the arguments and packages the result):
 - linear plant (no Coulomb friction, no dead zone) with the sampled guard:
   ``linear.run_zoh`` -- one matrix exponential per distinct step length, then
   plain float arithmetic per sample;
-- otherwise ``nonsmooth.run_events``: event-driven, stick/slip, velocity zero
+- otherwise ``event_step.run_events``: event-driven, stick/slip, velocity zero
   crossings, backlash edges and (``guard="continuous"``) the guard crossing
   itself located on the closed-form solution.
 
@@ -32,7 +32,8 @@ import numpy as np
 from pipeline.errors import PdrError
 from pipeline.model import loop
 from pipeline.model.linear import run_zoh
-from pipeline.model.nonsmooth import plant_constants, run_events
+from pipeline.model.event_step import run_events
+from pipeline.model.nonsmooth import plant_constants
 from pipeline.model.spec import PlantSpec
 
 GUARDS = ("sampled", "continuous")
@@ -159,7 +160,7 @@ def _run_linear(spec: PlantSpec, plan: _Plan, x: np.ndarray) -> SimResult:
 
 
 def _run_events(spec: PlantSpec, plan: _Plan, x: np.ndarray, *, continuous: bool) -> SimResult:
-    """Event-driven exact integration in the compiled kernel (``nonsmooth.run_events``)."""
+    """Event-driven exact integration in the compiled kernel (``event_step.run_events``)."""
     shift, v_bias = _torque_shift(spec)
     x[0] += shift
     n = len(plan.t)

@@ -64,6 +64,13 @@ def test_model_md_names_it_with_its_parameters(name):
         assert f"`{p.name}` [{p.unit}]" in row
 
 
+@pytest.mark.skipif(not MODEL_MD.is_file(), reason="shared/MODEL.md is not beside this checkout")
+def test_the_catalogue_is_exactly_model_mds_table():
+    text = MODEL_MD.read_text(encoding="utf-8").split("## Named effects", 1)[1]
+    names = [line.split("`")[1] for line in text.splitlines() if line.startswith("| `")]
+    assert names == NAMES                                    # same entries, in MODEL.md's order
+
+
 @pytest.mark.parametrize("name", NAMES)
 def test_fast_simulator_equals_the_reference_plant(name):
     spec = _spec(CATALOGUE[name].typical())

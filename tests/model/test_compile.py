@@ -11,13 +11,13 @@ import numpy as np
 import pandas as pd
 
 from pipeline.config import default_config
-from pipeline.model import linear, nonsmooth
+from pipeline.model import event_step, linear
 from pipeline.model.compile import compile_kernels
 from pipeline.model.effects import build_spec, make_effect
 from pipeline.model.simulate import simulate
 from pipeline.validate.compare import simulate_both
 
-DISPATCHERS = {"run_zoh": linear.run_zoh, "run_events": nonsmooth.run_events}
+DISPATCHERS = {"run_zoh": linear.run_zoh, "run_events": event_step.run_events}
 
 
 def _versions() -> dict[str, int]:
