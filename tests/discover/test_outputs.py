@@ -16,6 +16,7 @@ from typer.testing import CliRunner
 
 from pipeline.cli import app
 from pipeline.config import config_for_recording, resolve_config
+from pipeline.model.effects import CATALOGUE
 from pipeline.discover.adopt import adopt, without_effects_table
 from pipeline.discover.candidates import parameter_of
 from pipeline.discover.stage import merge_effects
@@ -52,8 +53,7 @@ def test_json_contract(delay_run):
     assert set(doc["mse_before"]) == {"theta", "omega", "current"}
     assert all(doc["mse_after"][s] < doc["mse_before"][s] for s in ("theta", "omega"))
     names = [c["name"] for c in doc["candidates"] if c["round"] == 1]
-    assert sorted(names) == sorted(["viscous_friction", "coulomb_friction", "driver_voltage_drop", "backlash",
-                                    "loop_delay", "current_sensor_offset", "rack_inertia", "spring_stiffness"])
+    assert sorted(names) == sorted(CATALOGUE)
     assert all(isinstance(c["score"], float) for c in doc["candidates"])
     accepted = [c for c in doc["candidates"] if c["accepted"]]
     assert accepted[0]["name"] == "loop_delay" and all(accepted[0]["checks"].values())
