@@ -1,0 +1,30 @@
+"""Constant load torque (MODEL.md): a torque on the pinion that does not depend on the motion,
+e.g. racks of unequal weight on a tilted rig or a cable pulling one way.  The oscillation centres
+on theta = -Tl / (R^2 (K1 + K2)) instead of 0."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import ClassVar
+
+import numpy as np
+
+from pipeline.model.effects.base import Effect, Param
+from pipeline.model.spec import PlantSpec
+
+_MAGNITUDES = tuple(float(v) for v in np.geomspace(1e-5, 5e-3, 12))
+
+
+@dataclass(frozen=True)
+class ConstantLoadTorque(Effect):
+    Tl: float
+    name: ClassVar[str] = "constant_load_torque"
+    ORDER: ClassVar[int] = 9
+    WHAT: ClassVar[str] = "J dw/dt gains -Tl: a constant torque on the pinion"
+    PARAMS: ClassVar[tuple[Param, ...]] = (
+        Param("Tl", "N m", bounds=(-2e-2, 2e-2), absent=0.0, typical=1e-3,
+              scan=(*(-v for v in reversed(_MAGNITUDES)), 0.0, *_MAGNITUDES)),)
+    SIGNATURE: ClassVar[str] = "everywhere"
+
+    def apply(self, spec: PlantSpec) -> PlantSpec:
+        return replace(spec, torque=spec.torque - self.Tl)
