@@ -28,7 +28,7 @@ from pipeline.model.effects import PlantSpec
 ENERGY_KEYS = (
     "energy_paper_j", "input_energy_j", "copper_loss_j", "friction_loss_j",
     "emf_torque_mismatch_j", "spring_energy_change_j", "kinetic_energy_change_j",
-    "magnetic_energy_change_j", "balance_residual_j",
+    "magnetic_energy_change_j", "load_work_j", "balance_residual_j",
 )
 
 
@@ -126,7 +126,8 @@ def energy_terms(t: np.ndarray, current: np.ndarray, omega: np.ndarray, theta: n
     spring = _change(0.5 * p.spring_torque_per_rad * dead_zone(theta, spec.gap) ** 2)  # Ks = R^2 (K1 + K2)
     kinetic = _change(0.5 * p.J * omega ** 2)
     magnetic = _change(0.5 * p.La * current ** 2)
-    residual = input_j - copper - friction - mismatch - spring - kinetic - magnetic
+    load = -spec.torque * _change(theta)                                          # work against a constant torque
+    residual = input_j - copper - friction - mismatch - spring - kinetic - magnetic - load
     return {
         "energy_paper_j": paper_energy_j(current, v_rms, period_s),
         "input_energy_j": input_j,
@@ -136,5 +137,6 @@ def energy_terms(t: np.ndarray, current: np.ndarray, omega: np.ndarray, theta: n
         "spring_energy_change_j": spring,
         "kinetic_energy_change_j": kinetic,
         "magnetic_energy_change_j": magnetic,
+        "load_work_j": load,
         "balance_residual_j": residual,
     }

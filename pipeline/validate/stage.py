@@ -56,7 +56,8 @@ def resolve_model(cfg: RigConfig, override: ModelOverride) -> tuple[PlantSpec, s
 def _model_json(spec: PlantSpec, source: str) -> dict:
     return {"source": source, "params": asdict(spec.params), "v_drive": spec.v_drive,
             "guard_rad": spec.guard_rad, "period_s": spec.period_s,
-            "nonsmooth": {"Tc": spec.Tc, "gap": spec.gap, "Td": spec.Td, "I0": spec.I0}}
+            "nonsmooth": {"Tc": spec.Tc, "gap": spec.gap, "Td": spec.Td, "I0": spec.I0},
+            "torque": spec.torque}
 
 
 def load_kinematics(paths: RunPaths) -> pd.DataFrame:

@@ -21,6 +21,20 @@ def test_paper_energy_within_3_percent_of_16_496(paper_run):
     assert e["energy_paper_j"] == pytest.approx(16.496, rel=0.03)
 
 
+def test_balance_closes_with_a_constant_load_torque():
+    """The work done against a constant load torque (tau * delta theta) is booked, so the books still close."""
+    from pipeline.model.effects import make_effect
+
+    from pipeline.model.simulate import sample_times
+
+    spec = default_config().plant_spec((make_effect("constant_load_torque", {"Tl": 3e-3}),))
+    r = simulate(spec, sample_times(7.3, 0.001))      # 1 ms samples: trapezoids far finer than the load's work
+    e = energy_terms(r.t, r.current, r.omega, r.theta, r.u, spec, v_rms=6.0, period_s=0.001)
+    assert e["load_work_j"] == pytest.approx(3e-3 * (r.theta[-1] - r.theta[0]))
+    assert abs(e["load_work_j"]) > 1e-3
+    assert abs(e["balance_residual_j"]) < 0.05 * abs(e["load_work_j"])
+
+
 def test_balance_closes_on_simulation(paper_run):
     spec, r = paper_run
     e = energy_terms(r.t, r.current, r.omega, r.theta, r.u, spec, v_rms=6.0, period_s=0.05)
