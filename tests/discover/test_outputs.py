@@ -16,11 +16,10 @@ from typer.testing import CliRunner
 
 from pipeline.cli import app
 from pipeline.config import config_for_recording, resolve_config
-from pipeline.model.effects import CATALOGUE
 from pipeline.discover.adopt import adopt, without_effects_table
 from pipeline.discover.candidates import parameter_of
 from pipeline.discover.stage import merge_effects
-from pipeline.model.effects import make_effect
+from pipeline.model.effects import CATALOGUE, make_effect
 from pipeline.validate.stage import resolve_model
 from tests.discover.synthetic import rig_kinematics
 
