@@ -9,7 +9,7 @@ between rad and A, and it is what BIC charges parameters against.
 A candidate is scanned and fitted on its first parameter (``Param.scan``, the
 effect's own coarse grid over its physical range), then Brent's method between
 the best scan point's neighbours; every parameter of every effect found so far
-is refitted jointly by Gauss-Newton (``polish``).  Effects
+is refitted jointly (``joint_fit``: ``scipy.optimize.least_squares``).  Effects
 found in earlier rounds are not frozen: the scan predicts how they would move
 (one Gauss-Newton step), and the candidate is refitted together with them.
 """
@@ -19,7 +19,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from scipy.optimize import minimize_scalar
+from scipy.optimize import least_squares, minimize_scalar
 
 from pipeline.discover.measurement import Measurement
 from pipeline.discover.residuals import residuals
@@ -319,54 +319,37 @@ def fit_value(ev: Evaluator, base: tuple[Effect, ...], name: str, bracket: tuple
     return float(res.x), float(res.fun)
 
 
-def bracket_around(name: str, v: float, width: float = 0.3) -> tuple[float, float]:
-    """A search range around an estimate, inside the effect's bounds.
+def joint_fit(ev: Evaluator, effects: tuple[Effect, ...], max_nfev: int = 40) -> tuple[Effect, ...]:
+    """Every parameter of every effect at once (``scipy.optimize.least_squares``, trust region within the
+    bounds), so the result does not depend on the order the effects were found in.
 
-    Narrow on purpose: the replayed loss of an oscillator has side minima
-    (a model far off drifts out of phase with the logged command), so refits
-    stay in the basin the full scan found.
+    Each signal's residual is divided by its RMS at the start (the concentrated
+    likelihood's weights there), each parameter by its own scale (its value, or
+    its typical size near zero); the fit is kept only if the likelihood improves.
     """
-    p = _first(name)
-    lo_b, hi_b = p.bounds
-    if p.signed:                        # either side of "absent": a range on the value, not on its scale
-        half = max(abs(v) * width, 0.01 * (hi_b - lo_b))
-        return max(v - half, lo_b), min(v + half, hi_b)
-    if v <= lo_b:
-        return lo_b, float(_scan(name)[1])
-    return max(v * (1.0 - width), lo_b), min(v * (1.0 + width), hi_b)
+    if not effects:
+        return effects
+    coords = coordinates(effects)
+    scale = np.array([max(abs(v), abs(p.typical - p.absent), 1e-12) for (_, p), v in zip(coords, values_of(effects))])
+    lo = np.array([p.bounds[0] for _, p in coords]) / scale
+    hi = np.array([p.bounds[1] for _, p in coords]) / scale
+    margin = 1e-9 * (hi - lo)
+    z0 = np.clip(values_of(effects) / scale, lo + margin, hi - margin)
+    start = residuals(ev.meas, ev.sim(effects))
+    weight = {s: 1.0 / np.sqrt(float(np.mean(r * r)) + 1e-3 * ev.floor[s]) for s, r in start.items()}
+    size = sum(len(r) for r in start.values())
 
+    def weighted(z: np.ndarray) -> np.ndarray:
+        res = residuals(ev.meas, ev.sim(with_values(effects, z * scale)))
+        out = np.concatenate([weight[s] * r for s, r in res.items()])
+        return out if out.shape == (size,) and np.all(np.isfinite(out)) else np.full(size, 1e6)
 
-def refit(ev: Evaluator, effects: tuple[Effect, ...], width: float = 0.2) -> tuple[Effect, ...]:
-    """One coordinate-descent sweep: each effect's parameter by Brent in a bracket around its value."""
-    current = list(effects)
-    for i, e in enumerate(current):
-        others = tuple(current[:i] + current[i + 1:])
-        v_new, _ = fit_value(ev, others, e.name, bracket_around(e.name, value_of(e), width))
-        current[i] = replace(e, **{e.PARAMS[0].name: v_new})
-    return tuple(current)
-
-
-def polish(ev: Evaluator, effects: tuple[Effect, ...], steps: int = 12) -> tuple[Effect, ...]:
-    """Joint Gauss-Newton steps over all parameters with backtracking (full, half, quarter step),
-    each kept only if the likelihood improves: confusable pairs (a softer spring and a backlash,
-    an inertia and a stiffer spring) trade off along a long curved valley that one parameter at
-    a time crosses only slowly."""
-    best, best_nll = effects, ev.nll(ev.sim(effects))
-    for _ in range(steps):
-        sens = sensitivity(ev, best)
-        step, _ = gauss_newton(sens.r0, sens.jac)
-        for scale in (1.0, 0.5, 0.25):
-            trial = moved_effects(best, step * scale, trust=0.5)
-            nll = ev.nll(ev.sim(trial))
-            if nll < best_nll - 1e-6:
-                break
-        else:
-            break
-        improvement = best_nll - nll
-        best, best_nll = trial, nll
-        if improvement < 1e-3:
-            break
-    return best
+    try:
+        sol = least_squares(weighted, z0, bounds=(lo, hi), diff_step=1e-4, max_nfev=max_nfev)
+    except ValueError:
+        return effects
+    trial = with_values(effects, sol.x * scale)
+    return trial if ev.nll(ev.sim(trial)) < ev.nll(ev.sim(effects)) else effects
 
 
 def autocorrelation_time(r: np.ndarray, max_lag: int = 50) -> float:
@@ -418,7 +401,7 @@ def prune(ev: Evaluator, effects: tuple[Effect, ...]) -> tuple[Effect, ...]:
         if not weak:
             break
         rest = effects[:weak[0]] + effects[weak[0] + 1:]
-        effects = polish(ev, refit(ev, rest)) if len(rest) > 1 else refit(ev, rest)
+        effects = joint_fit(ev, rest)
     return effects
 
 
@@ -435,7 +418,7 @@ def fit_candidate(ev: Evaluator, base: tuple[Effect, ...], name: str,
     if nll_all > at_grid:
         value, nll_all = float(sc.grid[i]), at_grid
     if base:
-        effects = polish(ev, refit(ev, (*moved, make(name, value))))
+        effects = joint_fit(ev, (*moved, make(name, value)))
         moved, value = effects[:-1], value_of(effects[-1])
         nll_all = ev.nll(ev.sim(effects))
     effects = (*moved, make(name, value))

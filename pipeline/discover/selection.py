@@ -31,8 +31,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pipeline.discover.candidates import (
-    Evaluator, Fit, Scan, effect_intervals, fit_candidate, folds_by_cycle, parameter_of, polish, prune, refit,
-    scan, sensitivity, value_of,
+    Evaluator, Fit, Scan, effect_intervals, fit_candidate, folds_by_cycle, parameter_of, prune,
+    scan, sensitivity,
 )
 from pipeline.discover.measurement import Measurement, ambiguous_switches, settle_switches
 from pipeline.discover.residuals import events, noise_floor, residuals
@@ -275,7 +275,7 @@ def select(meas: Measurement, names: tuple[str, ...] | None = None) -> Selection
                         "heldout_nll_gain": {best.fit.name: best.fit.heldout_nll_gain,
                                              runner.fit.name: runner.fit.heldout_nll_gain},
                         "runner_up_accepted": bool(runner.accepted)}
-        effects = polish(ev, refit(ev, best.fit.effects)) if len(best.fit.effects) > 1 else best.fit.effects
+        effects = best.fit.effects
         last_round = time.process_time() - round_start
     kept = prune(ev, effects)
     pruned = [e.name for e in effects if e.name not in {k.name for k in kept}]
