@@ -55,8 +55,12 @@ def create_recording(path: Path) -> int:
     try:
         return os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_APPEND, 0o644)
     except FileExistsError:
-        raise PdrError("a recording of that name already exists; pdr record never overwrites one, "
-                       "choose another --name", path=path) from None
+        raise exists_error(path) from None
+
+
+def exists_error(path: Path) -> PdrError:
+    return PdrError("a recording of that name already exists; pdr record never overwrites one, "
+                    "choose another --name", path=path)
 
 
 def _write_all(fd: int, data: bytes) -> None:
@@ -70,7 +74,7 @@ def _read(port: SerialPort) -> bytes:
 
 
 def capture(port: SerialPort, fd: int, *, stop: threading.Event, duration_s: float | None = None,
-            on_chunk: Callable[[int, bytes], None] = lambda offset, data: None,
+            on_chunk: Callable[[int, bytes], None] | None = None,
             sync_every_s: float = 0.5) -> CaptureResult:
     """Copy the port to ``fd`` until ``stop`` is set, ``duration_s`` has passed, or the port fails.
 
@@ -99,7 +103,8 @@ def capture(port: SerialPort, fd: int, *, stop: threading.Event, duration_s: flo
             break
         if data:
             _write_all(fd, data)
-            on_chunk(written, data)
+            if on_chunk is not None:
+                on_chunk(written, data)
             written += len(data)
             last_byte = data[-1:]
         if now - last_sync >= sync_every_s:

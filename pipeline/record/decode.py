@@ -27,6 +27,7 @@ from pipeline.ingest.parse import BOM, IDE_PREFIX, TRIM, has_control_bytes, head
 from pipeline.ingest.timing import UNIT_S
 
 _PREFIX = re.compile(IDE_PREFIX)
+EARLY_LINES = 20              # data lines before any header after which they are read positionally
 
 
 @dataclass
@@ -67,9 +68,13 @@ class LineDecoder:
     _t_offset: float = 0.0
     _last_t: float | None = None
     _first_t_raw: float = 0.0
-    _last_dir: int = 0            # the last sample's dir in the current segment (0 at a segment's start)
+    _time_segment: int = 0
+    _last_dir: int = 0            # the last sample's dir, and its segment
+    _dir_segment: int = 0
     _zero_v: float | None = None
+    _zero_segment: int = 0
     _rest: dict[str, list[int]] = field(default_factory=dict)
+    _early: list[str] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         zero = self.cfg.current_sensor.zero_v
@@ -116,26 +121,54 @@ class LineDecoder:
             except IngestError:
                 self.tally.unparsed += 1
                 return
+            early, self._early = self._early, []
+            if early:                           # rows before the first header: ingest's segment of their own
+                self._new_segment(layout, len(names))
+                for line in early:
+                    self._row(line, rows)
             self._new_segment(layout, len(names))
             return
-        if self._layout is None:
-            try:
-                self._new_segment(positional_layout(len(names), columns, self.source), len(names))
-            except IngestError:
-                self.tally.unparsed += 1
-                return
+        if self._layout is None:                # ingest reads these with the first header's layout, if any:
+            self._early.append(text)            # wait for it, a few lines at most
+            if len(self._early) >= EARLY_LINES:
+                self._positional(rows)
+            return
+        self._row(text, rows)
+
+    def _row(self, text: str, rows: list[tuple[int, dict]]) -> None:
         values = parse_line(text, self._layout, self._width)
         if isinstance(values, str):
             self.tally.unparsed += 1
             return
+        self._seg_has_data = True
         rows.append((self.tally.segment, values))
+
+    def _positional(self, rows: list[tuple[int, dict]]) -> None:
+        """No header came: the fields in INTERFACE.md order, as many as most early lines have (as ingest)."""
+        early, self._early = self._early, []
+        width = int(np.bincount([len(header_fields(t)) for t in early]).argmax())
+        try:
+            self._new_segment(positional_layout(width, self.cfg.columns, self.source), width)
+        except IngestError:
+            self.tally.unparsed += len(early)
+            return
+        for line in early:
+            self._row(line, rows)
+
+    def finish(self) -> Samples:
+        """The capture ended: its last line even without a line ending, and any lines still waiting."""
+        rows: list[tuple[int, dict]] = []
+        pending, self._pending = self._pending, b""
+        if pending and not self._resync:
+            self._line(pending, rows)
+        if self._early:
+            self._positional(rows)
+        return self._samples(rows)
 
     def _new_segment(self, layout: dict[str, int], width: int) -> None:
         if self._seg_has_data or self._layout is None:
             self.tally.segment += 1
-            if self._last_t is not None:        # lay the new segment after the last sample, one period on
-                self._t_offset = self._last_t + self.cfg.controller.period_s
-            self._seg_has_data, self._last_dir = False, 0
+            self._seg_has_data = False
         self._layout, self._width = layout, width
 
     def _samples(self, rows: list[tuple[int, dict]]) -> Samples:
@@ -150,16 +183,16 @@ class LineDecoder:
         values = {k: v[keep] for k, v in values.items()}
         segment = np.array([r[0] for r in rows], dtype=np.int64)[keep]
         t_s = np.empty(len(segment))
-        for i, t_raw in enumerate(values["t_raw"]):
-            if not self._seg_has_data:
-                self._first_t_raw, self._seg_has_data = float(t_raw), True
-            t_s[i] = self._t_offset + (t_raw - self._first_t_raw) * UNIT_S[self.cfg.columns.time_unit]
-        if len(t_s):
-            self._last_t = float(t_s[-1])
+        unit = UNIT_S[self.cfg.columns.time_unit]
+        for i, (t_raw, seg) in enumerate(zip(values["t_raw"], segment)):
+            if seg != self._time_segment:       # lay a new segment after the last sample, one period on
+                self._time_segment, self._first_t_raw = int(seg), float(t_raw)
+                self._t_offset = 0.0 if self._last_t is None else self._last_t + self.cfg.controller.period_s
+            self._last_t = t_s[i] = self._t_offset + (t_raw - self._first_t_raw) * unit
         d = values["dir"].astype(np.int8)
         self._count_switches(d, segment)
         self.tally.samples += len(t_s)
-        current = self._current(values, logged) if "adc" in logged else np.full(len(t_s), np.nan)
+        current = self._current(values, segment, logged) if "adc" in logged else np.full(len(t_s), np.nan)
         return Samples(t_s=t_s, theta_rad=values["counts"] * rad_per_count(self.cfg), current_a=current,
                        dir=d, segment=segment)
 
@@ -169,28 +202,37 @@ class LineDecoder:
 
         for seg in np.unique(segment):
             ds = d[segment == seg]
-            prev = self._last_dir if seg == self.tally.segment else 0
+            prev = self._last_dir if seg == self._dir_segment else 0
             self.tally.switches += len(switch_indices(np.r_[np.int8(prev), ds]))
-            self._last_dir = int(ds[-1])
+            self._last_dir, self._dir_segment = int(ds[-1]), int(seg)
 
-    def _current(self, values: dict[str, np.ndarray], logged: set[str]) -> np.ndarray:
+    def _current(self, values: dict[str, np.ndarray], segment: np.ndarray, logged: set[str]) -> np.ndarray:
         """Amps with ingest's formula; with ``zero_v = "auto"``, NaN until rest samples give the zero.
 
-        The zero is re-estimated with each batch until the motor has run (ingest
-        estimates it from the same rest samples), then kept.
+        As ingest, each segment (a board reset) gets its own zero, from its
+        rest samples: re-estimated with each batch until the motor has run, then kept.
         """
-        adc = values["adc"]
-        if self._zero_v is None:
-            motion = "dir" if "dir" in logged else "counts"
-            for key in ("adc", motion):
-                self._rest.setdefault(key, []).extend(values[key].tolist())
-            rest = {k: np.array(v, dtype=np.int64) for k, v in self._rest.items()}
-            try:
-                zero = estimate_zero(rest, self.cfg, self.source)
-            except IngestError:
-                return np.full(len(adc), np.nan)
-            moved = np.any(rest["dir"] != 0) if motion == "dir" else np.any(rest["counts"] != rest["counts"][0])
-            if moved:
-                self._zero_v = zero.zero_v
-            return amps(adc * volts_per_step(self.cfg), zero.zero_v, self.cfg)
-        return amps(adc * volts_per_step(self.cfg), self._zero_v, self.cfg)
+        out = np.full(len(segment), np.nan)
+        for seg in np.unique(segment):
+            rows = segment == seg
+            adc = values["adc"][rows]
+            if self._zero_segment != seg and self.cfg.current_sensor.zero_v == "auto":
+                self._zero_segment, self._zero_v, self._rest = int(seg), None, {}
+            zero = self._zero_v if self._zero_v is not None else self._estimate_zero(values, rows, logged)
+            if zero is not None:
+                out[rows] = amps(adc * volts_per_step(self.cfg), zero, self.cfg)
+        return out
+
+    def _estimate_zero(self, values: dict[str, np.ndarray], rows: np.ndarray, logged: set[str]) -> float | None:
+        motion = "dir" if "dir" in logged else "counts"
+        for key in ("adc", motion):
+            self._rest.setdefault(key, []).extend(values[key][rows].tolist())
+        rest = {k: np.array(v, dtype=np.int64) for k, v in self._rest.items()}
+        try:
+            zero = estimate_zero(rest, self.cfg, self.source).zero_v
+        except IngestError:
+            return None
+        moved = np.any(rest["dir"] != 0) if motion == "dir" else np.any(rest["counts"] != rest["counts"][0])
+        if moved:
+            self._zero_v = zero
+        return zero

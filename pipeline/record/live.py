@@ -130,7 +130,7 @@ class LiveView:
             self.rec.set_time(TIMELINE, duration=float(s.t_s[-1]))
         text = (f"lines {tally.lines}  samples {tally.samples}  segments {tally.segment}\n\n"
                 f"switches {tally.switches}\n\nlines that did not parse {tally.unparsed}\n\n"
-                f"frames dropped by the view {self.dropped_chunks} (lines skipped {tally.skipped_lines})")
+                f"chunks dropped by the view {self.dropped_chunks} (lines skipped {tally.skipped_lines})")
         self.rec.log("counts", rr.TextDocument(text))
 
     def _mode_lane(self, s: Samples, names: dict[int, str]) -> None:

@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Iterator
 
 from pipeline.errors import PdrError
-from pipeline.record.capture import READ_TIMEOUT_S, CaptureResult, capture, create_recording
+from pipeline.record.capture import READ_TIMEOUT_S, CaptureResult, capture, create_recording, exists_error
 from pipeline.record.live import LiveView, ViewSink
 
 
@@ -71,6 +71,23 @@ def start_view(opts: RecordOptions, cfg) -> LiveView | None:
     return LiveView(cfg, rec).start()
 
 
+def capture_to(csv: Path, opts: RecordOptions, on_chunk, say) -> CaptureResult:
+    """Open the port, create the file, copy until a stop; both closed whatever happens."""
+    port = open_port(opts.port, opts.baud)
+    try:
+        fd = create_recording(csv)
+        try:
+            say(f"recording {opts.port} -> {csv}"
+                + (f" for {opts.duration_s:g} s" if opts.duration_s else "") + "; Ctrl-C stops")
+            stop = threading.Event()
+            with stop_on_signals(stop):
+                return capture(port, fd, stop=stop, duration_s=opts.duration_s, on_chunk=on_chunk)
+        finally:
+            os.close(fd)
+    finally:
+        port.close()
+
+
 def record(opts: RecordOptions, say=print) -> tuple[CaptureResult, int]:
     """Capture, then (unless ``opts.run`` is off) process; returns the capture and the exit status."""
     from pipeline.config import config_for_recording
@@ -79,24 +96,12 @@ def record(opts: RecordOptions, say=print) -> tuple[CaptureResult, int]:
     check_name(opts.name)
     csv = Path(opts.raw) / f"{opts.name}.csv"
     cfg = config_for_recording(csv)           # the layers the run will use: the live view decodes with them
-    port = open_port(opts.port, opts.baud)
+    if csv.exists():                          # checked again, race-free, by create_recording
+        raise exists_error(csv)
+    view = start_view(opts, cfg)              # before the port opens: a board prints from then on
     try:
-        fd = create_recording(csv)
-    except PdrError:
-        port.close()
-        raise
-    stop = threading.Event()
-    view = None
-    try:
-        view = start_view(opts, cfg)
-        say(f"recording {opts.port} -> {csv}"
-            + (f" for {opts.duration_s:g} s" if opts.duration_s else "") + "; Ctrl-C stops")
-        with stop_on_signals(stop):
-            result = capture(port, fd, stop=stop, duration_s=opts.duration_s,
-                             on_chunk=view.offer if view is not None else (lambda offset, data: None))
+        result = capture_to(csv, opts, view.offer if view is not None else None, say)
     finally:
-        os.close(fd)
-        port.close()
         if view is not None:
             view.close()
     say(f"stopped: {result.reason}; {result.n_bytes} bytes in {result.seconds:.1f} s -> {csv}")

@@ -109,9 +109,22 @@ class PtyRig:
         finally:
             os.close(slave)
 
-    def drain(self, timeout_s: float) -> None:
+    def drain(self, timeout_s: float, settle_s: float = 0.2) -> None:
+        """Wait until the reader has taken everything: nothing unread for ``settle_s`` in a row.
+
+        A write to the master reaches the slave's queue a moment later (the
+        kernel pushes it asynchronously), so one empty look is not enough.
+        """
         end = time.monotonic() + timeout_s
-        while self.reader_present() and self.unread() and time.monotonic() < end:
+        empty_since = None
+        while self.reader_present() and time.monotonic() < end:
+            now = time.monotonic()
+            if self.unread():
+                empty_since = None
+            elif empty_since is None:
+                empty_since = now
+            elif now - empty_since >= settle_s:
+                return
             time.sleep(POLL_S)
 
     def close(self) -> None:
@@ -120,7 +133,7 @@ class PtyRig:
 
 def serve(rig: PtyRig, schedule: Schedule, speed: float, boot_s: float = 0.5,
           sleep: Callable[[float], None] = time.sleep) -> int:
-    """Stream the schedule through the pty in real time / ``speed``; returns the bytes the reader took."""
+    """Stream the schedule through the pty in real time / ``speed``; returns the bytes written."""
     sleep(boot_s)
     start = time.monotonic()
     sent = 0
