@@ -11,7 +11,9 @@ that did not parse and frames dropped.
 
 from __future__ import annotations
 
+import os
 import queue
+import sys
 import threading
 import time
 from dataclasses import dataclass
@@ -20,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.config import RigConfig
+from pipeline.errors import PdrError
 from pipeline.record.decode import LineDecoder, Samples
 
 TIMELINE = "time"
@@ -34,12 +37,29 @@ class ViewSink:
     target: str | None = None
 
     def open(self, rec, blueprint) -> None:
-        if self.kind == "spawn":
-            rec.spawn(default_blueprint=blueprint)
-        elif self.kind == "connect":
-            rec.connect_grpc(self.target, default_blueprint=blueprint)
-        else:
-            rec.save(Path(self.target), default_blueprint=blueprint)
+        """Attach the stream; a viewer that cannot start is a one-line error pointing at the other sinks."""
+        import rerun as rr
+
+        from pipeline.validate.rerun_log import rerun_executable
+
+        if self.kind == "spawn" and not has_display():
+            raise PdrError("no display for a viewer (DISPLAY and WAYLAND_DISPLAY are unset); use --save-view "
+                           "FILE.rrd (open it later with rerun FILE.rrd), --connect URL or --no-view")
+        try:
+            if self.kind == "spawn":            # the wheel's own viewer binary: .venv/bin need not be on PATH
+                rr.spawn(executable_path=rerun_executable(), default_blueprint=blueprint, recording=rec)
+            elif self.kind == "connect":
+                rec.connect_grpc(self.target, default_blueprint=blueprint)
+            else:
+                rec.save(Path(self.target), default_blueprint=blueprint)
+        except (RuntimeError, OSError, ValueError) as err:
+            raise PdrError(f"cannot start the live view ({str(err).strip().splitlines()[0]}); "
+                           f"use --no-view, --connect URL or --save-view FILE.rrd") from None
+
+
+def has_display() -> bool:
+    """A Linux viewer needs X11 or Wayland; without either it exits at once and the stream waits for it."""
+    return not sys.platform.startswith("linux") or bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
 
 
 def live_blueprint():
@@ -87,7 +107,10 @@ class LiveView:
         except queue.Full:
             pass
         self._thread.join(timeout_s)
-        self.rec.flush(timeout_sec=timeout_s)
+        try:
+            self.rec.flush(timeout_sec=timeout_s)
+        except RuntimeError as err:           # e.g. the viewer never came up: the recording is unaffected
+            self.error = self.error or str(err).strip().splitlines()[0]
 
     def _run(self) -> None:
         try:

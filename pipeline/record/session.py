@@ -65,6 +65,7 @@ def start_view(opts: RecordOptions, cfg) -> LiveView | None:
     import rerun as rr
 
     from pipeline.record.live import live_blueprint
+    from pipeline.validate import rerun_log  # noqa: F401  (imported now, not in the view's first frame)
 
     rec = rr.RecordingStream("pdr-record", recording_id=f"{opts.name}-{time.time_ns()}")
     opts.view.open(rec, live_blueprint())
@@ -91,7 +92,7 @@ def capture_to(csv: Path, opts: RecordOptions, on_chunk, say) -> CaptureResult:
 def record(opts: RecordOptions, say=print) -> tuple[CaptureResult, int]:
     """Capture, then (unless ``opts.run`` is off) process; returns the capture and the exit status."""
     from pipeline.config import config_for_recording
-    from pipeline.rig.recording import check_name
+    from pipeline.runs import check_name
 
     check_name(opts.name)
     csv = Path(opts.raw) / f"{opts.name}.csv"

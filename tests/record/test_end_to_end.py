@@ -3,7 +3,8 @@
 The bars of issue 19: the capture is byte-identical to what the rig sent (at 20x, 400 lines/s,
 with the live view on) and validates like the same recording made with ``pdr rig make``;
 ``kill -9`` mid-capture leaves a file ingest accepts; the other end closing mid-stream ends
-the capture cleanly and the pipeline runs on what was captured.
+the capture cleanly and the pipeline runs on what was captured (the serve closing its end after
+the stream, and here mid-line, with ``record`` called in this process).
 """
 
 from __future__ import annotations
@@ -21,7 +22,8 @@ import pytest
 from rerun.chunk import RrdReader
 
 from pipeline.ingest.stage import ingest_recording
-from pipeline.record.session import run_recorded
+from pipeline.record.capture import STOP_PORT_GONE
+from pipeline.record.session import RecordOptions, record, run_recorded
 from pipeline.rig.cli import recording_from_options
 from pipeline.rig.recording import write_recording
 from pipeline.rig.serve import PtyRig, line_schedule
@@ -52,6 +54,7 @@ def test_record_from_the_virtual_rig_is_byte_identical_and_validates_like_rig_ma
                          capture_output=True, text=True, timeout=120)
     server.wait(30)
     assert rec.returncode == 0, rec.stdout + rec.stderr
+    # the rig closed its end when done: the capture ends on that, and the pipeline runs on it
     assert "stopped: the port went away" in rec.stdout and "pdr view live" in rec.stdout
     assert "validation summary" in rec.stderr
 
@@ -112,7 +115,7 @@ def test_kill_9_mid_capture_leaves_a_file_ingest_accepts(tmp_path):
     assert result.report["rows"]["quarantined"] <= 1
 
 
-def test_other_end_closing_mid_stream_ends_cleanly_and_runs_the_pipeline(tmp_path):
+def test_other_end_closing_mid_line_ends_cleanly_and_runs_the_pipeline(tmp_path):
     (tmp_path / "raw").mkdir()
     rig = PtyRig()
     recording = recording_from_options([], [], None, 4, 8.0, [])
@@ -130,11 +133,12 @@ def test_other_end_closing_mid_stream_ends_cleanly_and_runs_the_pipeline(tmp_pat
 
     thread = threading.Thread(target=board, daemon=True)
     thread.start()
-    out = subprocess.run([PDR, "record", rig.path, "--name", "unplugged", "--no-view"], cwd=tmp_path,
-                         capture_output=True, text=True, timeout=120)
+    said: list[str] = []
+    result, status = record(RecordOptions(port=rig.path, name="unplugged", raw=tmp_path / "raw",
+                                          processed=tmp_path / "processed", view=None), say=said.append)
     thread.join(10)
-    assert out.returncode == 0, out.stdout + out.stderr
-    assert "stopped: the port went away" in out.stdout and "pdr view unplugged" in out.stdout
+    assert status == 0 and result.reason.startswith(STOP_PORT_GONE)
+    assert said[-1] == f"pdr view unplugged --processed {tmp_path / 'processed'}"
     assert (tmp_path / "raw" / "unplugged.csv").read_bytes() == half
     report = json.loads((tmp_path / "processed" / "unplugged" / "ingest_report.json").read_text())
     assert report["rows"]["kept"] == half.count(b"\n") - 1 and report["rows"]["quarantined"] == 1
