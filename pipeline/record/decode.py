@@ -39,6 +39,7 @@ class Samples:
     current_a: np.ndarray         # NaN while the sensor zero is unknown or adc not logged
     dir: np.ndarray               # int8; 0 when dir is not logged
     segment: np.ndarray           # 1, 2, ...: a repeated header (board reset) starts the next
+    has_dir: bool = True          # the sketch logs dir (else the mode is not known sample by sample)
 
     def __len__(self) -> int:
         return len(self.t_s)
@@ -194,7 +195,7 @@ class LineDecoder:
         self.tally.samples += len(t_s)
         current = self._current(values, segment, logged) if "adc" in logged else np.full(len(t_s), np.nan)
         return Samples(t_s=t_s, theta_rad=values["counts"] * rad_per_count(self.cfg), current_a=current,
-                       dir=d, segment=segment)
+                       dir=d, segment=segment, has_dir="dir" in logged)
 
     def _count_switches(self, d: np.ndarray, segment: np.ndarray) -> None:
         """Reversals as the validation counts them, carried across batches within a segment."""

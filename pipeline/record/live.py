@@ -102,11 +102,12 @@ class LiveView:
 
     def close(self, timeout_s: float = 5.0) -> None:
         """Show what is queued, then end the thread and flush the stream."""
-        try:
-            self._queue.put(_END, timeout=timeout_s)
-        except queue.Full:
-            pass
-        self._thread.join(timeout_s)
+        if self._thread.is_alive():
+            try:
+                self._queue.put(_END, timeout=timeout_s)
+            except queue.Full:
+                pass
+            self._thread.join(timeout_s)
         try:
             self.rec.flush(timeout_sec=timeout_s)
         except RuntimeError as err:           # e.g. the viewer never came up: the recording is unaffected
@@ -131,6 +132,8 @@ class LiveView:
             done = _END in batch
             chunks = [c for c in batch if c is not _END]
             self._log(self.decoder.feed(chunks))
+            if done:                            # the capture's last line, even without its line ending
+                self._log(self.decoder.finish())
             rest = self._frame_s - (time.monotonic() - started)
             if rest > 0 and not done:
                 time.sleep(rest)
@@ -149,7 +152,8 @@ class LiveView:
                        {"measured": (s.theta_rad, MEASURED, 1.5), "guard +": (g, GUARD, 1.0),
                         "guard -": (-g, GUARD, 1.0)})
             log_signal(self.rec, "signals/current", time_column, {"measured": (s.current_a, MEASURED, 1.5)})
-            self._mode_lane(s, MODE_NAMES)
+            if s.has_dir:
+                self._mode_lane(s, MODE_NAMES)
             self.rec.set_time(TIMELINE, duration=float(s.t_s[-1]))
         text = (f"lines {tally.lines}  samples {tally.samples}  segments {tally.segment}\n\n"
                 f"switches {tally.switches}\n\nlines that did not parse {tally.unparsed}\n\n"

@@ -78,7 +78,7 @@ def test_a_dropped_chunk_costs_the_view_one_line_never_a_wrong_sample(tmp_path):
     assert np.all(np.isin(got.t_s, signals["t_s"].to_numpy()))
 
 
-def test_partial_line_waits_for_its_end(tmp_path):
+def test_partial_line_waits_for_its_end_and_a_cut_last_line_is_counted(tmp_path):
     rec = make_recording(RigSetup(duration_s=1.0, seed=4))
     cfg, signals, _report = _ingested(rec, tmp_path)
     data = rec.csv_bytes
@@ -86,6 +86,25 @@ def test_partial_line_waits_for_its_end(tmp_path):
     cut = data.index(b"\n", data.index(b"\n") + 1) + 4                 # header, one row, 4 bytes of the next
     first = decoder.feed([(0, data[:cut])])
     assert len(first) == 1
-    rest = decoder.feed([(cut, data[cut:])])
+    rest = decoder.feed([(cut, data[cut:] + b"12345,6")])              # the capture ends mid-line
     assert len(first) + len(rest) == len(signals)
     assert rest.theta_rad[0] == signals["theta_rad"].iloc[1]
+    assert decoder.tally.unparsed == 0
+    assert len(decoder.finish()) == 0 and decoder.tally.unparsed == 1     # as ingest: a short row, reported
+
+
+@pytest.mark.parametrize("art", [Artefacts(header=False, dir_column=False, blank_lines=1),
+                                 Artefacts(time_unit="us", column_names=("us", "pos", "cur", "d"), garbled=2)],
+                         ids=["no header, no dir", "micros, own names"])
+def test_decoder_reads_other_sketches_as_ingest_does(tmp_path, art):
+    rec = make_recording(RigSetup(artefacts=art, duration_s=3.0, seed=8))
+    cfg, signals, report = _ingested(rec, tmp_path)
+    decoder = LineDecoder(cfg)
+    chunks = _chunks(rec.csv_bytes, np.random.default_rng(5))
+    got = _decode(decoder, chunks, per_feed=3)
+    last = decoder.finish()
+    assert len(got) + len(last) == len(signals)
+    np.testing.assert_array_equal(np.r_[got.theta_rad, last.theta_rad], signals["theta_rad"].to_numpy())
+    np.testing.assert_allclose(np.r_[got.t_s, last.t_s], signals["t_s"].to_numpy(), rtol=0, atol=1e-9)
+    assert decoder.tally.unparsed == report["rows"]["quarantined"]
+    assert last.has_dir == ("dir" in signals.columns)
