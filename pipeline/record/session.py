@@ -13,13 +13,17 @@ import signal
 import threading
 import time
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Iterator
 
 from pipeline.errors import PdrError
-from pipeline.record.capture import READ_TIMEOUT_S, CaptureResult, capture, create_recording, exists_error
+from pipeline.record.capture import READ_TIMEOUT_S, STOP_INTERRUPT, CaptureResult, capture, create_recording, \
+    exists_error
 from pipeline.record.live import LiveView, ViewSink
+
+
+STOP_TERMINATED = "terminated (SIGTERM)"
 
 
 @dataclass(frozen=True)
@@ -46,14 +50,18 @@ def open_port(port: str, baud: int):
 
 
 @contextmanager
-def stop_on_signals(stop: threading.Event) -> Iterator[None]:
-    """SIGINT and SIGTERM set ``stop`` instead of raising, for the duration of the capture."""
-    def handler(_signum, _frame) -> None:
+def stop_on_signals(stop: threading.Event) -> Iterator[list[int]]:
+    """SIGINT and SIGTERM set ``stop`` instead of raising, for the duration of the capture; yields the
+    signals received."""
+    received: list[int] = []
+
+    def handler(signum, _frame) -> None:
+        received.append(signum)
         stop.set()
 
     old = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
-        yield
+        yield received
     finally:
         for sig, h in old.items():
             signal.signal(sig, h)
@@ -81,8 +89,11 @@ def capture_to(csv: Path, opts: RecordOptions, on_chunk, say) -> CaptureResult:
             say(f"recording {opts.port} -> {csv}"
                 + (f" for {opts.duration_s:g} s" if opts.duration_s else "") + "; Ctrl-C stops")
             stop = threading.Event()
-            with stop_on_signals(stop):
-                return capture(port, fd, stop=stop, duration_s=opts.duration_s, on_chunk=on_chunk)
+            with stop_on_signals(stop) as received:
+                result = capture(port, fd, stop=stop, duration_s=opts.duration_s, on_chunk=on_chunk)
+            if result.reason == STOP_INTERRUPT and received[:1] == [signal.SIGTERM]:
+                result = replace(result, reason=STOP_TERMINATED)
+            return result
         finally:
             os.close(fd)
     finally:

@@ -21,7 +21,6 @@ import termios
 import time
 import tty
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
@@ -131,17 +130,19 @@ class PtyRig:
         os.close(self.master)
 
 
-def serve(rig: PtyRig, schedule: Schedule, speed: float, boot_s: float = 0.5,
-          sleep: Callable[[float], None] = time.sleep) -> int:
-    """Stream the schedule through the pty in real time / ``speed``; returns the bytes written."""
-    sleep(boot_s)
+def serve(rig: PtyRig, schedule: Schedule, speed: float, boot_s: float = 0.5) -> int:
+    """Stream the schedule through the pty in real time / ``speed``; returns the bytes written.
+
+    Stops early when the reader closes the port (nobody would read the rest).
+    """
+    time.sleep(boot_s)
     start = time.monotonic()
     sent = 0
     for line, at in zip(schedule.lines, schedule.at_s):
         wait = start + float(at) / speed - time.monotonic()
         if wait > 0:
-            sleep(wait)
-        if not rig.send(line):
+            time.sleep(wait)
+        if not rig.reader_present() or not rig.send(line):
             break
         sent += len(line)
     return sent

@@ -7,11 +7,12 @@ import signal
 import threading
 import time
 
+import pytest
 from typer.testing import CliRunner
 
 from pipeline.cli import app
 from pipeline.record.capture import STOP_INTERRUPT
-from pipeline.record.session import RecordOptions, record
+from pipeline.record.session import STOP_TERMINATED, RecordOptions, record
 from pipeline.rig.serve import PtyRig
 
 runner = CliRunner()
@@ -41,7 +42,8 @@ def test_refusals_name_what_was_expected(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["taken.csv"]
 
 
-def test_ctrl_c_stops_on_a_whole_line_and_keeps_every_byte(tmp_path):
+@pytest.mark.parametrize("sig, said_reason", [(signal.SIGINT, STOP_INTERRUPT), (signal.SIGTERM, STOP_TERMINATED)])
+def test_ctrl_c_stops_on_a_whole_line_and_keeps_every_byte(tmp_path, sig, said_reason):
     """SIGINT to this process while ``record`` captures in its main thread, as Ctrl-C in a terminal."""
     (tmp_path / "raw").mkdir()
     rig = PtyRig()
@@ -62,19 +64,20 @@ def test_ctrl_c_stops_on_a_whole_line_and_keeps_every_byte(tmp_path):
         deadline = time.monotonic() + 30
         while (not csv.exists() or csv.stat().st_size < 500) and time.monotonic() < deadline:
             time.sleep(0.02)
-        os.kill(os.getpid(), signal.SIGINT)
+        os.kill(os.getpid(), sig)
 
     threads = [threading.Thread(target=f, daemon=True) for f in (board, ctrl_c)]
     for t in threads:
         t.start()
     said: list[str] = []
+    handlers = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
     result, status = record(RecordOptions(port=rig.path, name="stopped", raw=tmp_path / "raw", view=None,
                                           run=False), say=said.append)
     for t in threads:
         t.join(10)
     rig.close()
-    assert status == 0 and result.reason == STOP_INTERRUPT
-    assert said[1].startswith("stopped: interrupted (Ctrl-C)") and "--no-run" in said[-1]
+    assert status == 0 and result.reason == said_reason
+    assert said[1].startswith(f"stopped: {said_reason}") and "--no-run" in said[-1]
     data = csv.read_bytes()
     assert bytes(sent).startswith(data) and data.endswith(b"\n") and len(data) >= 500
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler          # restored after the capture
+    assert {s: signal.getsignal(s) for s in handlers} == handlers          # restored after the capture
