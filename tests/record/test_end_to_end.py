@@ -34,10 +34,22 @@ RIG = ["--effect", "coulomb_friction:Tc=3e-4", "--artefact", "ide2", "--artefact
 pytestmark = pytest.mark.slow
 
 
-def _serve(tmp_path: Path, *args: str) -> tuple[subprocess.Popen, str]:
-    proc = subprocess.Popen([PDR, "rig", "serve", "--pty", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, cwd=tmp_path)
-    return proc, proc.stdout.readline().strip()
+@pytest.fixture
+def serve_pty(tmp_path):
+    """``pdr rig serve --pty ARGS`` in tmp_path: (process, device path); stopped at the end whatever happens."""
+    procs: list[subprocess.Popen] = []
+
+    def start(*args: str) -> tuple[subprocess.Popen, str]:
+        proc = subprocess.Popen([PDR, "rig", "serve", "--pty", "--wait", "60", *args], stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True, cwd=tmp_path)
+        procs.append(proc)
+        return proc, proc.stdout.readline().strip()
+
+    yield start
+    for proc in procs:
+        if proc.poll() is None:
+            proc.kill()
+        proc.communicate()
 
 
 def _validation(processed: Path, run: str) -> dict:
@@ -46,25 +58,26 @@ def _validation(processed: Path, run: str) -> dict:
     return out
 
 
-def test_record_from_the_virtual_rig_is_byte_identical_and_validates_like_rig_make(tmp_path):
+def test_record_from_the_virtual_rig_is_byte_identical_and_validates_like_rig_make(tmp_path, serve_pty):
     (tmp_path / "raw").mkdir()
-    server, port = _serve(tmp_path, "--speed", "20", "--toml", "raw/live.toml", *RIG)
+    server, port = serve_pty("--speed", "20", "--toml", "raw/live.toml", *RIG)
     assert port.startswith("/dev/")
-    rec = subprocess.run([PDR, "record", port, "--name", "live", "--save-view", "live.rrd"], cwd=tmp_path,
-                         capture_output=True, text=True, timeout=120)
-    server.wait(30)
-    assert rec.returncode == 0, rec.stdout + rec.stderr
-    # the rig closed its end when done: the capture ends on that, and the pipeline runs on it
-    assert "stopped: the port went away" in rec.stdout and "pdr view live" in rec.stdout
-    assert "validation summary" in rec.stderr
-
-    # what `pdr rig make live --out made RIG...` writes (its own code, in this process)
+    rec = subprocess.Popen([PDR, "record", port, "--name", "live", "--save-view", "live.rrd"], cwd=tmp_path,
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    # meanwhile, what `pdr rig make live --out made RIG...` writes (its own code), through the same pipeline
     write_recording(recording_from_options(["coulomb_friction:Tc=3e-4"], [], None, 7, 8.0, ["ide2", "garbled=3"]),
                     tmp_path / "made", "live")
+    assert run_recorded(tmp_path / "made" / "live.csv", tmp_path / "made_processed", say=lambda _s: None) == 0
+    stdout, stderr = rec.communicate(timeout=120)
+    server.wait(30)
+    assert rec.returncode == 0, stdout + stderr
+    # the rig closed its end when done: the capture ends on that, and the pipeline runs on it
+    assert "stopped: the port went away" in stdout and "pdr view live" in stdout
+    assert "validation summary" in stderr
+
     sent = (tmp_path / "made" / "live.csv").read_bytes()
     assert (tmp_path / "raw" / "live.csv").read_bytes() == sent               # every byte, none added
     assert (tmp_path / "raw" / "live.toml").read_text() == (tmp_path / "made" / "live.toml").read_text()
-    assert run_recorded(tmp_path / "made" / "live.csv", tmp_path / "made_processed", say=lambda _s: None) == 0
     assert _validation(tmp_path / "processed", "live") == _validation(tmp_path / "made_processed", "live")
 
     # the live view saw every sample ingest kept (nothing dropped at 400 lines/s), read back by rerun
@@ -72,7 +85,7 @@ def test_record_from_the_virtual_rig_is_byte_identical_and_validates_like_rig_ma
     rows = sum(ch.num_rows for ch in RrdReader(tmp_path / "live.rrd").stream().to_chunks()
                if ch.entity_path == "/signals/theta" and not ch.is_static)
     assert rows == kept
-    assert "3 lines did not parse, 0 chunks dropped" in rec.stdout
+    assert "3 lines did not parse, 0 chunks dropped" in stdout
 
 
 def test_kill_9_mid_capture_leaves_a_file_ingest_accepts(tmp_path):
