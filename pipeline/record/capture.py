@@ -47,18 +47,25 @@ class CaptureResult:
     seconds: float
 
 
-def create_recording(path: Path) -> int:
-    """Open ``path`` for appending, refusing if it exists (O_EXCL: no race with another writer)."""
+def check_new_recording(path: Path) -> None:
+    """Refuse early (before a viewer or the port is opened) what ``create_recording`` would refuse."""
     path = Path(path)
     if not path.parent.is_dir():
         raise PdrError("folder not found (expected the raw recordings folder)", path=path.parent)
+    if path.exists():
+        raise _exists_error(path)
+
+
+def create_recording(path: Path) -> int:
+    """Open ``path`` for appending, refusing if it exists (O_EXCL: no race with another writer)."""
+    check_new_recording(path)
     try:
         return os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_APPEND, 0o644)
-    except FileExistsError:
-        raise exists_error(path) from None
+    except FileExistsError:                   # created since the check
+        raise _exists_error(path) from None
 
 
-def exists_error(path: Path) -> PdrError:
+def _exists_error(path: Path) -> PdrError:
     return PdrError("a recording of that name already exists; pdr record never overwrites one, "
                     "choose another --name", path=path)
 

@@ -6,7 +6,7 @@ dropped from the view, and only from the view (it is already on disk).  This
 thread takes whatever has queued, decodes it with ingest's code
 (``LineDecoder``), and logs it as one frame per ``frame_s``: theta with the
 guards, current, the mode lane and a running count of lines, switches, lines
-that did not parse and frames dropped.
+that did not parse and chunks the queue dropped.
 """
 
 from __future__ import annotations

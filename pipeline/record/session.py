@@ -18,8 +18,8 @@ from pathlib import Path
 from typing import Iterator
 
 from pipeline.errors import PdrError
-from pipeline.record.capture import READ_TIMEOUT_S, STOP_INTERRUPT, CaptureResult, capture, create_recording, \
-    exists_error
+from pipeline.record.capture import READ_TIMEOUT_S, STOP_INTERRUPT, CaptureResult, capture, check_new_recording, \
+    create_recording
 from pipeline.record.live import LiveView, ViewSink
 
 
@@ -108,8 +108,7 @@ def record(opts: RecordOptions, say=print) -> tuple[CaptureResult, int]:
     check_name(opts.name)
     csv = Path(opts.raw) / f"{opts.name}.csv"
     cfg = config_for_recording(csv)           # the layers the run will use: the live view decodes with them
-    if csv.exists():                          # checked again, race-free, by create_recording
-        raise exists_error(csv)
+    check_new_recording(csv)                  # again, race-free, when the file is created
     view = start_view(opts, cfg)              # before the port opens: a board prints from then on
     try:
         result = capture_to(csv, opts, view.offer if view is not None else None, say)
