@@ -76,6 +76,8 @@ class LineDecoder:
     _zero_segment: int = 0
     _rest: dict[str, list[int]] = field(default_factory=dict)
     _early: list[str] = field(default_factory=list)
+    _sep: bytes = b"\n"
+    _seen_lf: bool = False
 
     def __post_init__(self) -> None:
         zero = self.cfg.current_sensor.zero_v
@@ -90,7 +92,11 @@ class LineDecoder:
                 self.tally.skipped_lines += 1
             self._next_offset = offset + len(data)
             buf = self._pending + data
-            lines = buf.split(b"\n")
+            if self._sep == b"\n" and not self._seen_lf:      # CR-only endings, as ingest accepts them
+                self._seen_lf = b"\n" in buf
+                if not self._seen_lf and buf.count(b"\r") >= 2:
+                    self._sep = b"\r"
+            lines = buf.split(self._sep)
             self._pending = lines.pop()
             for raw in lines:
                 if self._resync:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -93,11 +95,15 @@ def test_partial_line_waits_for_its_end_and_a_cut_last_line_is_counted(tmp_path)
     assert len(decoder.finish()) == 0 and decoder.tally.unparsed == 1     # as ingest: a short row, reported
 
 
-@pytest.mark.parametrize("art", [Artefacts(header=False, dir_column=False, blank_lines=1),
-                                 Artefacts(time_unit="us", column_names=("us", "pos", "cur", "d"), garbled=2)],
-                         ids=["no header, no dir", "micros, own names"])
-def test_decoder_reads_other_sketches_as_ingest_does(tmp_path, art):
+@pytest.mark.parametrize("art, cr_only", [(Artefacts(header=False, dir_column=False, blank_lines=1), False),
+                                          (Artefacts(time_unit="us", column_names=("us", "pos", "cur", "d"),
+                                                     garbled=2), False),
+                                          (Artefacts(comments=2), True)],
+                         ids=["no header, no dir", "micros, own names", "CR-only line endings"])
+def test_decoder_reads_other_sketches_as_ingest_does(tmp_path, art, cr_only):
     rec = make_recording(RigSetup(artefacts=art, duration_s=3.0, seed=8))
+    if cr_only:
+        rec = replace(rec, csv_bytes=rec.csv_bytes.replace(b"\n", b"\r"))
     cfg, signals, report = _ingested(rec, tmp_path)
     decoder = LineDecoder(cfg)
     chunks = _chunks(rec.csv_bytes, np.random.default_rng(5))
