@@ -26,6 +26,7 @@ from pipeline.errors import PdrError
 from pipeline.record.decode import LineDecoder, Samples
 
 TIMELINE = "time"
+LIVE_VIEW_NAMES = ("theta [rad]", "current [A]", "mode", "counts")
 _END = None
 
 
@@ -65,11 +66,12 @@ def has_display() -> bool:
 def live_blueprint():
     import rerun.blueprint as rrb
 
+    theta, current, mode, counts = LIVE_VIEW_NAMES
     return rrb.Vertical(
-        rrb.TimeSeriesView(origin="/signals/theta", name="theta [rad]"),
-        rrb.TimeSeriesView(origin="/signals/current", name="current [A]"),
-        rrb.StateTimelineView(origin="/mode", name="mode"),
-        rrb.TextDocumentView(origin="/counts", name="counts"),
+        rrb.TimeSeriesView(origin="/signals/theta", name=theta),
+        rrb.TimeSeriesView(origin="/signals/current", name=current),
+        rrb.StateTimelineView(origin="/mode", name=mode),
+        rrb.TextDocumentView(origin="/counts", name=counts),
         row_shares=[4, 4, 1, 1],
     )
 

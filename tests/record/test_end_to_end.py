@@ -23,6 +23,7 @@ from rerun.chunk import RrdReader
 
 from pipeline.ingest.stage import ingest_recording
 from pipeline.record.capture import STOP_PORT_GONE
+from pipeline.record.live import LIVE_VIEW_NAMES
 from pipeline.record.session import RecordOptions, record, run_recorded
 from pipeline.rig.cli import recording_from_options
 from pipeline.rig.recording import write_recording
@@ -82,9 +83,14 @@ def test_record_from_the_virtual_rig_is_byte_identical_and_validates_like_rig_ma
 
     # the live view saw every sample ingest kept (nothing dropped at 400 lines/s), read back by rerun
     kept = json.loads((tmp_path / "processed" / "live" / "ingest_report.json").read_text())["rows"]["kept"]
-    rows = sum(ch.num_rows for ch in RrdReader(tmp_path / "live.rrd").stream().to_chunks()
+    reader = RrdReader(tmp_path / "live.rrd")
+    rows = sum(ch.num_rows for ch in reader.stream().to_chunks()
                if ch.entity_path == "/signals/theta" and not ch.is_static)
     assert rows == kept
+    names = {v[0] for ch in reader.stream(store=reader.blueprints()[0]).to_chunks()
+             for rb in [ch.to_record_batch()] if "ViewBlueprint:display_name" in rb.schema.names
+             for v in rb.column("ViewBlueprint:display_name").to_pylist() if v}
+    assert names == set(LIVE_VIEW_NAMES)                     # it opens on the live layout
     assert "3 lines did not parse, 0 chunks dropped" in stdout
 
 
