@@ -120,6 +120,7 @@ def test_kill_9_mid_capture_leaves_a_file_ingest_accepts(tmp_path):
     deadline = time.monotonic() + 60
     while (not csv.exists() or csv.stat().st_size < 3000) and time.monotonic() < deadline:
         time.sleep(0.05)
+    waiting = rig.unread()                  # sent, not yet read by pdr record: the port still holds it
     os.kill(proc.pid, signal.SIGKILL)
     killed_at = time.monotonic()
     proc.wait(10)
@@ -128,7 +129,8 @@ def test_kill_9_mid_capture_leaves_a_file_ingest_accepts(tmp_path):
     data = csv.read_bytes()
     assert recording.csv_bytes.startswith(data)                  # a prefix of what was sent, byte for byte
     sent_a_second_before = max((n for t, n in sent_at if t <= killed_at - 1.0), default=0)
-    assert len(data) >= sent_a_second_before and len(data) < len(recording.csv_bytes)
+    # all that was read is on disk, up to the last second (a starved reader may not have read it all yet)
+    assert len(data) >= sent_a_second_before - waiting and len(data) < len(recording.csv_bytes)
     result = ingest_recording(csv, tmp_path / "processed")
     assert result.report["rows"]["kept"] >= data.count(b"\n") - 2        # the header, a cut last line at most
     assert result.report["rows"]["quarantined"] <= 1
