@@ -25,6 +25,7 @@ def _register() -> None:
     from pipeline.discover import cli as discover_cli
     from pipeline.ingest import cli as ingest_cli
     from pipeline.model import cli as model_cli
+    from pipeline.record import cli as record_cli
     from pipeline.rig import cli as rig_cli
     from pipeline.validate import cli as validate_cli
 
@@ -36,6 +37,7 @@ def _register() -> None:
     app.command("discover")(discover_cli.discover)
     app.command("gate")(validate_cli.gate)
     app.command("view")(validate_cli.view)
+    app.command("record")(record_cli.record)
     app.add_typer(rig_cli.app, name="rig")
 
 

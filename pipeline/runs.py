@@ -8,11 +8,22 @@ segment gives the run ``<stem>``; a file in which the board reset gives
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from pipeline.config import RigConfig, config_from_dict
+from pipeline.errors import PdrError
+
+_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
+
+
+def check_name(name: str) -> str:
+    """A recording name that is safe as a file stem (raw/<name>.csv) and a run folder."""
+    if not _NAME.match(name):
+        raise PdrError(f"expected a recording name of letters, digits, '_', '-' or '.', got {name!r}", key="NAME")
+    return name
 
 
 @dataclass(frozen=True)
@@ -80,8 +91,6 @@ def load_config(paths: RunPaths) -> RigConfig:
 def resolve_runs(recording: str | Path, processed: Path) -> list[RunPaths]:
     """The processed runs a user means by RECORDING: a processed run folder, a run name, or a raw CSV path
     (its runs ``<stem>`` or ``<stem>-seg1``, ``-seg2``, ...).  Refuses, naming it, when nothing matches."""
-    from pipeline.errors import PdrError
-
     item = Path(recording)
     if item.is_dir():
         return [RunPaths(item)]

@@ -90,12 +90,26 @@ def make(
 
     Example: pdr rig make hidden_backlash --effect backlash:gap=0.05 --artefact ide2 --artefact crlf --seed 7
     """
+    from pipeline.rig.recording import check_name, write_recording
+
+    check_name(name)
+    rec = recording_from_options(effect, declare, config, seed, duration, artefact,
+                                 pre_roll=pre_roll, noise=noise, zero_v=zero_v)
+    paths = write_recording(rec, out, name)
+    typer.echo(summary_line(name, rec))
+    for p in paths.values():
+        typer.echo(f"  wrote {p}")
+
+
+def recording_from_options(effect: list[str], declare: list[str], config: Path | None, seed: int, duration: float,
+                           artefact: list[str], *, pre_roll: float = 1.0, noise: float = 5.0 / 1024,
+                           zero_v: str = "calibrated"):
+    """The virtual rig's recording for the options of ``make`` and ``serve`` (a bad option is a PdrError)."""
     from dataclasses import replace
 
     from pipeline.config import default_config, resolve_config
-    from pipeline.rig.recording import RigSetup, check_name, make_recording, write_recording
+    from pipeline.rig.recording import RigSetup, make_recording
 
-    check_name(name)
     cfg = resolve_config([config]) if config is not None else default_config()
     if declare:
         cfg = replace(cfg, effects=(*cfg.effects, *(parse_effect(d, "--declare") for d in declare)))
@@ -103,13 +117,53 @@ def make(
         setup = RigSetup(effects=tuple(parse_effect(e) for e in effect), config=cfg, duration_s=duration,
                          pre_roll_s=pre_roll, noise_v=noise, zero_v=zero_v,
                          artefacts=parse_artefacts(artefact), seed=seed)
-        rec = make_recording(setup)
+        return make_recording(setup)
     except ValueError as err:
         raise PdrError(str(err)) from None
-    paths = write_recording(rec, out, name)
-    typer.echo(summary_line(name, rec))
-    for p in paths.values():
-        typer.echo(f"  wrote {p}")
+
+
+@app.command("serve")
+def serve(
+    pty: Annotated[bool, typer.Option("--pty", help="Serve through a pseudo-terminal (the only transport).")] = False,
+    speed: Annotated[float, typer.Option(help="Play X times faster than the rig's own sample times.")] = 1.0,
+    effect: Annotated[list[str], typer.Option(help="Hidden effect in the plant, NAME:PARAM=VALUE (repeatable).")] = [],
+    declare: Annotated[list[str], typer.Option(help="Effect the rig has AND its TOML declares (repeatable).")] = [],
+    config: Annotated[Path | None, typer.Option(help="Rig TOML the user believes (default: the paper's rig).")] = None,
+    seed: Annotated[int, typer.Option(help="Random seed: same seed, same bytes as pdr rig make.")] = 0,
+    duration: Annotated[float, typer.Option(help="Active logging time after the pre-roll, in s.")] = 24.95,
+    artefact: Annotated[list[str], typer.Option(help=f"Serial artefact (repeatable): {ARTEFACT_HELP}.")] = [],
+    toml: Annotated[Path | None, typer.Option(help="Also write the rig's TOML here (e.g. raw/NAME.toml).")] = None,
+    wait: Annotated[float, typer.Option(help="Give up when no reader opens the port within S seconds.")] = 600.0,
+) -> None:
+    """Stream a virtual-rig recording through a pseudo-terminal, as the board would, for pdr record.
+
+    Prints the device path, waits for a reader, sends the capture at the rig's sample times
+    (or --speed times faster), then closes the port (to the reader: the board unplugged).
+
+    Example: pdr rig serve --pty --speed 10 --toml raw/demo.toml &   then   pdr record /dev/pts/N --name demo
+    """
+    from pipeline.io.atomic import write_text
+    from pipeline.rig.serve import PtyRig, line_schedule, serve as stream
+
+    if not pty:
+        raise PdrError("expected --pty (the virtual rig serves through a pseudo-terminal)", key="--pty")
+    if speed <= 0:
+        raise PdrError(f"expected a speed > 0, got {speed}", key="--speed")
+    rec = recording_from_options(effect, declare, config, seed, duration, artefact)
+    if toml is not None:
+        write_text(toml, rec.toml_text)
+    rig = PtyRig()
+    typer.echo(rig.path, nl=True)
+    typer.echo(f"virtual rig on {rig.path}: {len(rec.csv_bytes)} bytes over "
+               f"{float(rec.truth['t_s'].iloc[-1]) / speed:.1f} s once a reader opens it", err=True)
+    try:
+        if not rig.wait_for_reader(wait):
+            raise PdrError(f"no reader opened the port within {wait:g} s", path=rig.path)
+        sent = stream(rig, line_schedule(rec), speed)
+        rig.drain(timeout_s=10.0)
+    finally:
+        rig.close()
+    typer.echo(f"sent {sent} of {len(rec.csv_bytes)} bytes; port closed", err=True)
 
 
 @app.command("shipped")

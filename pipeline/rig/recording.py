@@ -40,7 +40,6 @@ asking for an artefact never changes the physics or the sensor readings.
 from __future__ import annotations
 
 import json
-import re
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -49,15 +48,14 @@ import numpy as np
 import pandas as pd
 
 from pipeline.config import RigConfig, default_config
-from pipeline.errors import PdrError
 from pipeline.model.effects import Effect, PlantSpec
 from pipeline.rig import sensors
 from pipeline.rig.plant import run_reference
 from pipeline.rig.serial import Artefacts, SerialRows, render, time_text
+from pipeline.runs import check_name  # noqa: F401  (re-exported: the rig's API)
 
 ZERO_V_MODES = ("calibrated", "auto", "nominal")
 TRUTH_DIR = "truth"
-_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
 # Integration tolerances for recordings: errors of a few 1e-9 rad, a millionth of an encoder
 # count, at 2/3 of the cost of the reference defaults (1e-10 / 1e-12).
 _TOL = {"rtol": 1e-9, "atol": 1e-11}
@@ -240,12 +238,6 @@ def rig_toml(cfg: RigConfig, art: Artefacts, zero_v: float | str, seed: int) -> 
     head = ("# SYNTHETIC: made by the pdr virtual rig (pdr rig), not a real capture.\n"
             f"# seed {seed}; ground truth in {TRUTH_DIR}/ beside this file (the pipeline never reads it).\n")
     return head + tomli_w.dumps(doc)
-
-
-def check_name(name: str) -> str:
-    if not _NAME.match(name):
-        raise PdrError(f"expected a recording name of letters, digits, '_', '-' or '.', got {name!r}", key="NAME")
-    return name
 
 
 def write_recording(rec: Recording, out_dir: Path, name: str) -> dict[str, Path]:
