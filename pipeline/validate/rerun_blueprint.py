@@ -1,0 +1,109 @@
+"""The layouts saved inside the ``.rrd`` files: what the viewer opens on.
+
+A run (``run_blueprint``): each signal in a row with its residual beside it, at
+the same height, every time axis linked; the mode lane under them; the 3-D
+phase portrait over the statistics and events on the right.  One legend, on
+the angle plot, in a band above the data kept free by the plot's range.  The
+side panels are collapsed and the time panel is paused: the recording is
+complete when it is opened, so there is nothing to play, and the time cursor
+stays where the viewer puts a finished recording's (see the viewer test).
+
+Discovery (``discovery_blueprint``): the same rows for the measurement, the
+base and the augmented model, the residual before and after, and the phase
+portrait before and after, with the report beside them.
+
+Each layout takes only a few hashable arguments, so ``rerun_io.blueprint_chunks``
+builds each once per process.
+"""
+
+from __future__ import annotations
+
+from pipeline.validate.rerun_io import stable_ids
+
+SIGNAL_UNITS = (("theta", "rad"), ("omega", "rad/s"), ("current", "A"))
+RUN_VIEW_NAMES = ("theta [rad]", "omega [rad/s]", "current [A]", "residual theta [rad]", "residual omega [rad/s]",
+                  "residual current [A]", "mode", "trajectory (I, w, theta)", "statistics", "events")
+DISCOVERY_VIEW_NAMES = ("theta [rad]", "omega [rad/s]", "current [A]", "residual theta [rad]",
+                        "residual omega [rad/s]", "residual current [A]", "mode", "before: base model (I, w, theta)",
+                        "after: augmented model (I, w, theta)", "report")
+
+
+def legend_band(lo: float, hi: float, entries: int) -> tuple[float, float]:
+    """A y range for a plot whose data span [lo, hi] that leaves room above them for a legend of
+    ``entries`` lines (~6 % of the plot's height each where the plot is ~250 px tall)."""
+    share = min(0.06 * entries + 0.05, 0.6)
+    span = hi - lo
+    return lo - 0.03 * span, hi + span * share / (1.0 - share)
+
+
+def _time_series(name: str, origin: str, legend: bool = False, y_range: tuple[float, float] | None = None):
+    import rerun.blueprint as rrb
+
+    return rrb.TimeSeriesView(
+        origin=origin, name=name, axis_x=rrb.TimeAxis(link="LinkToGlobal"),
+        axis_y=rrb.ScalarAxis(range=y_range) if y_range is not None else None,
+        plot_legend=rrb.PlotLegend(corner="LeftTop", visible=legend))
+
+
+def _signal_rows(theta_range: tuple[float, float] | None):
+    """Three rows, each a signal with its residual beside it (same height), and the mode lane."""
+    import rerun.blueprint as rrb
+
+    rows = [rrb.Horizontal(_time_series(f"{sig} [{unit}]", f"/signals/{sig}", legend=sig == "theta",
+                                        y_range=theta_range if sig == "theta" else None),
+                           _time_series(f"residual {sig} [{unit}]", f"/residuals/{sig}"),
+                           column_shares=[3, 2])
+            for sig, unit in SIGNAL_UNITS]
+    lane = rrb.StateTimelineView(origin="/mode", name="mode", time_view=rrb.TimeAxis(link="LinkToGlobal"))
+    return rrb.Vertical(*rows, lane, row_shares=[4, 3, 3, 1.4])
+
+
+def _portrait(name: str, origin: str):
+    import rerun.blueprint as rrb
+
+    from pipeline.validate.rerun_phase import CAMERA
+
+    return rrb.Spatial3DView(origin=origin, name=name, background=rrb.Background(color=(20, 20, 24)),
+                             eye_controls=rrb.EyeControls3D(kind="Orbital", **CAMERA),
+                             line_grid=rrb.LineGrid3D(visible=False))
+
+
+def _panels():
+    import rerun.blueprint as rrb
+
+    return (rrb.TimePanel(state="collapsed", play_state="following"), rrb.SelectionPanel(state="collapsed"),
+            rrb.BlueprintPanel(state="collapsed"))
+
+
+def _events_view():
+    import rerun.blueprint as rrb
+
+    return rrb.TextLogView(origin="/events", name="events", columns=rrb.TextLogColumns(
+        timeline_columns=[rrb.encodings.TimelineColumn(timeline="time", visible=False)],
+        text_log_columns=[rrb.encodings.TextLogColumn("LogLevel"), rrb.encodings.TextLogColumn("Body"),
+                          rrb.encodings.TextLogColumn("EntityPath", visible=False)]))
+
+
+def run_blueprint(theta_range: tuple[float, float] | None = None):
+    """The layout of ``<run>.rrd``; ``theta_range`` leaves the legend its band (``legend_band``)."""
+    import rerun.blueprint as rrb
+
+    right = rrb.Vertical(_portrait("trajectory (I, w, theta)", "/trajectory"),
+                         rrb.Tabs(rrb.TextDocumentView(origin="/stats", name="statistics"), _events_view()),
+                         row_shares=[3, 2])
+    bp = rrb.Blueprint(rrb.Horizontal(_signal_rows(theta_range), right, column_shares=[3, 2]),
+                       *_panels(), auto_views=False)
+    return stable_ids(bp, "run")
+
+
+def discovery_blueprint(theta_range: tuple[float, float] | None = None):
+    """The layout of ``discovery.rrd``: signals and residuals left, portraits before/after and the report right."""
+    import rerun.blueprint as rrb
+
+    right = rrb.Vertical(
+        rrb.Horizontal(_portrait("before: base model (I, w, theta)", "/trajectory_before"),
+                       _portrait("after: augmented model (I, w, theta)", "/trajectory_after")),
+        rrb.TextDocumentView(origin="/report", name="report"), row_shares=[2, 3])
+    bp = rrb.Blueprint(rrb.Horizontal(_signal_rows(theta_range), right, column_shares=[3, 2]),
+                       *_panels(), auto_views=False)
+    return stable_ids(bp, "discovery")
