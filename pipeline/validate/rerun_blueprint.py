@@ -55,7 +55,7 @@ def _signal_rows(theta_range: tuple[float, float] | None):
                            column_shares=[3, 2])
             for sig, unit in SIGNAL_UNITS]
     lane = rrb.StateTimelineView(origin="/mode", name="mode", time_view=rrb.TimeAxis(link="LinkToGlobal"))
-    return rrb.Vertical(*rows, lane, row_shares=[4, 3, 3, 1.4])
+    return rrb.Vertical(*rows, lane, row_shares=[4, 3, 3, 1.8])
 
 
 def _portrait(name: str, origin: str):
@@ -107,3 +107,22 @@ def discovery_blueprint(theta_range: tuple[float, float] | None = None):
     bp = rrb.Blueprint(rrb.Horizontal(_signal_rows(theta_range), right, column_shares=[3, 2]),
                        *_panels(), auto_views=False)
     return stable_ids(bp, "discovery")
+
+
+def side_by_side_blueprint(names: tuple[str, ...], theta_range: tuple[float, float] | None = None):
+    """Several runs in columns (``pdr view A B``): each run's signals, mode lane and phase portrait
+    under ``/runs/<name>``, every time axis linked; the legend on the first run's angle plot."""
+    import rerun.blueprint as rrb
+
+    columns = []
+    for i, name in enumerate(names):
+        root = f"/runs/{name}"
+        plots = [_time_series(f"{name}: {sig} [{unit}]", f"{root}/signals/{sig}", legend=i == 0 and sig == "theta",
+                              y_range=theta_range if sig == "theta" else None)
+                 for sig, unit in SIGNAL_UNITS]
+        lane = rrb.StateTimelineView(origin=f"{root}/mode", name=f"{name}: mode",
+                                     time_view=rrb.TimeAxis(link="LinkToGlobal"))
+        columns.append(rrb.Vertical(*plots, lane, _portrait(f"{name}: trajectory (I, w, theta)", f"{root}/trajectory"),
+                                    row_shares=[3, 2, 2, 1, 3]))
+    bp = rrb.Blueprint(rrb.Horizontal(*columns), *_panels(), auto_views=False)
+    return stable_ids(bp, "side-by-side/" + "/".join(names))

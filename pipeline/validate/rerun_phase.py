@@ -67,7 +67,7 @@ def log_phase_portrait(rec, origin: str, strips: dict[str, tuple[np.ndarray, tup
         labels=[f"{n} [{u}], \u00b1{e:.3g}" for (n, u), e in zip(AXES, ext)], show_labels=True), static=True)
     names = list(strips)
     rec.log(f"{origin}/legend", rr.Points3D(
-        [[-1.0, 1.0, 1.25 + 0.22 * (len(names) - 1 - i)] for i in range(len(names))],
+        [[-1.0, 1.0, 1.25 + 0.3 * (len(names) - 1 - i)] for i in range(len(names))],
         radii=rr.Radius.ui_points(4.0), colors=_packed([strips[n][1] for n in names]), labels=names,
         show_labels=True), static=True)
     return ext
