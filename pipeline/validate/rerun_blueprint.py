@@ -30,8 +30,9 @@ DISCOVERY_VIEW_NAMES = ("theta [rad]", "omega [rad/s]", "current [A]", "residual
 
 def legend_band(lo: float, hi: float, entries: int) -> tuple[float, float]:
     """A y range for a plot whose data span [lo, hi] that leaves room above them for a legend of
-    ``entries`` lines (~6 % of the plot's height each where the plot is ~250 px tall)."""
-    share = min(0.06 * entries + 0.05, 0.6)
+    ``entries`` lines (~8 % of the plot's height each: ~20 px of a ~270 px plot, the angle plot in
+    a 1600 x 1000 window)."""
+    share = min(0.08 * entries + 0.05, 0.65)
     span = hi - lo
     return lo - 0.03 * span, hi + span * share / (1.0 - share)
 
@@ -55,7 +56,7 @@ def _signal_rows(theta_range: tuple[float, float] | None):
                            column_shares=[3, 2])
             for sig, unit in SIGNAL_UNITS]
     lane = rrb.StateTimelineView(origin="/mode", name="mode", time_view=rrb.TimeAxis(link="LinkToGlobal"))
-    return rrb.Vertical(*rows, lane, row_shares=[4, 3, 3, 1.8])
+    return rrb.Vertical(*rows, lane, row_shares=[5, 3, 3, 1.8])
 
 
 def _portrait(name: str, origin: str):
@@ -104,7 +105,7 @@ def discovery_blueprint(theta_range: tuple[float, float] | None = None):
         rrb.Horizontal(_portrait("before: base model (I, w, theta)", "/trajectory_before"),
                        _portrait("after: augmented model (I, w, theta)", "/trajectory_after")),
         rrb.TextDocumentView(origin="/report", name="report"), row_shares=[2, 3])
-    bp = rrb.Blueprint(rrb.Horizontal(_signal_rows(theta_range), right, column_shares=[3, 2]),
+    bp = rrb.Blueprint(rrb.Horizontal(_signal_rows(theta_range), right, column_shares=[5, 4]),
                        *_panels(), auto_views=False)
     return stable_ids(bp, "discovery")
 

@@ -274,12 +274,12 @@ def portrait_strips(kin: pd.DataFrame, models: dict[str, tuple[SimResult, tuple]
     stage's smoothed one (the raw current's ADC steps and noise would scribble over the curve)."""
     strips = {label: (np.column_stack([sim.current_measured, sim.omega, sim.theta]), color, 1.0)
               for label, (sim, color) in models.items()}
-    current = _measured(kin, "current_smooth_a")
+    label, current = "measured (smoothed current)", _measured(kin, "current_smooth_a")
     if current is None:
-        current = _measured(kin, "current_a")
+        label, current = "measured", _measured(kin, "current_a")
     if current is not None:
         measured = np.column_stack([current, _measured(kin, "omega_rad_s"), _measured(kin, "theta_rad")])
-        strips["measured (smoothed current)"] = (measured, RGB["measured"], 1.5)
+        strips[label] = (measured, RGB["measured"], 1.5)
     return strips
 
 

@@ -9,8 +9,10 @@ squares 2 x 2 at theta = +/- theta_g / extent, and the camera saved in the
 blueprint (``CAMERA``) sees the unit cube whatever the run.
 
 What is drawn in the unit frame (beside ``scaled``, not under it): the axis
-arrows with their units, a legend of coloured labels above the cube, and the
-guard planes' labels, all opaque.
+arrows along three edges, their units and extents at the tips, a legend of coloured
+labels above the cube's centre, and the guard planes' labels beside the angle
+axis, all opaque; labels are centred on their points, so they sit where even a
+narrow view (discovery's two portraits) does not cut them.
 """
 
 from __future__ import annotations
@@ -58,16 +60,18 @@ def log_phase_portrait(rec, origin: str, strips: dict[str, tuple[np.ndarray, tup
         colors=_packed([GUARD_PLANE_RGBA] * 2), fill_mode="solid"), static=True)
     g = guard / ext[2]
     rec.log(f"{origin}/guard_labels", rr.Points3D(
-        [[1.0, 1.0, g], [1.0, 1.0, -g]], radii=rr.Radius.ui_points(0.0), colors=_packed([GUARD_LABEL_RGB] * 2),
-        labels=[f"guard theta = +{guard:.3f} rad", f"guard theta = -{guard:.3f} rad"], show_labels=True),
+        [[-1.0, -1.0, g], [-1.0, -1.0, -g]], radii=rr.Radius.ui_points(0.0), colors=_packed([GUARD_LABEL_RGB] * 2),
+        labels=[f"guard +{guard:.3f} rad", f"guard -{guard:.3f} rad"], show_labels=True),
         static=True)
-    rec.log(f"{origin}/axes", rr.Arrows3D(
-        vectors=(2.0 * np.eye(3)).tolist(), origins=[[-1.0, -1.0, -1.0]] * 3, colors=_packed(AXIS_COLORS),
-        radii=rr.Radius.ui_points(1.5),
+    corner = -np.ones(3)
+    rec.log(f"{origin}/axes", rr.Arrows3D(vectors=(2.0 * np.eye(3)).tolist(), origins=[corner.tolist()] * 3,
+                                          colors=_packed(AXIS_COLORS), radii=rr.Radius.ui_points(1.5)), static=True)
+    rec.log(f"{origin}/axis_labels", rr.Points3D(   # at the arrows' tips, clear of the guards' labels
+        (corner + 2.15 * np.eye(3)).tolist(), radii=rr.Radius.ui_points(0.0), colors=_packed(AXIS_COLORS),
         labels=[f"{n} [{u}], \u00b1{e:.3g}" for (n, u), e in zip(AXES, ext)], show_labels=True), static=True)
     names = list(strips)
     rec.log(f"{origin}/legend", rr.Points3D(
-        [[-1.0, 1.0, 1.25 + 0.3 * (len(names) - 1 - i)] for i in range(len(names))],
+        [[0.0, 0.0, 1.3 + 0.3 * (len(names) - 1 - i)] for i in range(len(names))],
         radii=rr.Radius.ui_points(4.0), colors=_packed([strips[n][1] for n in names]), labels=names,
         show_labels=True), static=True)
     return ext

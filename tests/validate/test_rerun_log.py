@@ -112,6 +112,8 @@ def test_departing_ways_keep_both_series_lanes_and_residuals(departing):
     np.testing.assert_allclose(_scalars(chunks, "/residuals/omega")[:, 1],
                                kin["omega_rad_s"].to_numpy() - sims["replay"].omega)
     assert "Closed loop = replay" not in _static(chunks, "/stats", "TextDocument:text")[0]
+    # no smoothed current in this table: the portrait's measured curve is the raw one, and says so
+    assert _static(chunks, "/trajectory/legend", "Points3D:labels") == ["closed loop", "replay", "measured"]
 
 
 def test_values_round_trip(rrd):
@@ -173,7 +175,7 @@ def test_phase_portrait_scale_is_below_the_views_origin_and_uses_the_smoothed_cu
     assert _static(chunks, "/trajectory/guard_labels", "Points3D:colors")[0] & 0xFF == 0xFF   # opaque labels
     assert _static(chunks, "/trajectory/legend", "Points3D:labels") == ["closed loop = replay",
                                                                       "measured (smoothed current)"]
-    labels = _static(chunks, "/trajectory/axes", "Arrows3D:labels")
+    labels = _static(chunks, "/trajectory/axis_labels", "Points3D:labels")
     assert any("[A]" in s for s in labels) and any("[rad/s]" in s for s in labels)
 
 
