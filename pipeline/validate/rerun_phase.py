@@ -9,10 +9,10 @@ squares 2 x 2 at theta = +/- theta_g / extent, and the camera saved in the
 blueprint (``CAMERA``) sees the unit cube whatever the run.
 
 What is drawn in the unit frame (beside ``scaled``, not under it): the axis
-arrows along three edges, their units and extents at the tips, a legend of coloured
-labels above the cube's centre, and the guard planes' labels beside the angle
-axis, all opaque; labels are centred on their points, so they sit where even a
-narrow view (discovery's two portraits) does not cut them.
+arrows along three edges, their units and extents at the tips, a legend of
+coloured labels above the cube's centre, and the guard planes' labels beside
+the angle axis, all opaque; labels are centred on their points, placed where
+even a narrow view (discovery's two portraits) does not cut them.
 """
 
 from __future__ import annotations
@@ -46,7 +46,7 @@ def finite_rows(xyz: np.ndarray) -> np.ndarray:
 
 def log_phase_portrait(rec, origin: str, strips: dict[str, tuple[np.ndarray, tuple, float]], guard: float) -> np.ndarray:
     """Log the portrait under ``origin``: ``strips`` maps a label to (N x 3 array of I, omega, theta;
-    RGB colour; line width in UI points), drawn in that order (the last on top).  Returns the extents."""
+    RGB colour; line width in UI points), listed in the legend in that order.  Returns the extents."""
     import rerun as rr
 
     ext = extents({k: v[0] for k, v in strips.items()}, guard)

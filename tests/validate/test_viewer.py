@@ -188,21 +188,20 @@ def _check_layout(state, recording, names) -> None:
     assert recording.current_timeline == "time" and recording.current_time == timeline.end   # opens at the end
 
 
-def test_run_recording_opens_on_its_layout_with_the_portrait_scaled(viewer, recordings, shots):
-    state, recording = _open(viewer, recordings["run"])
+def _run_recording(viewer, path, shots) -> None:
+    state, recording = _open(viewer, path)
     _check_layout(state, recording, VIEW_NAMES)
     pixels = _screenshot(viewer, shots, "run.png")
     assert pixels.shape[0] >= 600 and pixels.shape[1] >= 800 and pixels.std() > 10
     (portrait,) = [v for v in state.views if v.view_class == "3D"]
     assert _inside(_guard_planes(viewer.take_screenshot(portrait.view_id), "run-3d.png"))   # the saved camera
-    assert 0.85 < _top_down(viewer, recording, portrait, "run-top-down.png") < 1.18                              # squares
+    assert 0.85 < _top_down(viewer, recording, portrait, "run-top-down.png") < 1.18         # squares
 
 
-def test_discovery_recording_opens_on_its_layout_with_both_portraits_scaled(viewer, recordings, shots):
-    state, recording = _open(viewer, recordings["discovery"])
+def _discovery_recording(viewer, path, shots) -> None:
+    state, recording = _open(viewer, path)
     _check_layout(state, recording, DISCOVERY_VIEW_NAMES)
-    pixels = _screenshot(viewer, shots, "discovery.png")
-    assert pixels.std() > 10
+    assert _screenshot(viewer, shots, "discovery.png").std() > 10
     portraits = [v for v in state.views if v.view_class == "3D"]
     assert len(portraits) == 2
     for view in portraits:
@@ -210,8 +209,16 @@ def test_discovery_recording_opens_on_its_layout_with_both_portraits_scaled(view
     assert 0.85 < _top_down(viewer, recording, portraits[0], "discovery-top-down.png") < 1.18
 
 
-def test_the_aspect_check_fails_when_the_scale_sits_on_the_views_origin(viewer, recordings):
-    state, recording = _open(viewer, recordings["unscaled"])
+def _unscaled_recording(viewer, path) -> None:
+    """The negative control: the same checks fail when the scale sits on the view's origin."""
+    state, recording = _open(viewer, path)
     (portrait,) = [v for v in state.views if v.view_class == "3D"]
     assert not _inside(_guard_planes(viewer.take_screenshot(portrait.view_id), "unscaled-3d.png"))
-    assert _top_down(viewer, recording, portrait, "unscaled-top-down.png") < 0.5          # 0.65 A by 5 rad/s: long thin strips
+    assert _top_down(viewer, recording, portrait, "unscaled-top-down.png") < 0.5   # 0.65 A by 5 rad/s: thin strips
+
+
+def test_recordings_open_on_their_layouts_with_the_portraits_scaled(viewer, recordings, shots):
+    """One test, so that one pytest-xdist worker starts one viewer and makes the recordings once."""
+    _run_recording(viewer, recordings["run"], shots)
+    _discovery_recording(viewer, recordings["discovery"], shots)
+    _unscaled_recording(viewer, recordings["unscaled"])
