@@ -18,6 +18,8 @@ builds each once per process.
 
 from __future__ import annotations
 
+import numpy as np
+
 from pipeline.validate.rerun_io import stable_ids
 
 SIGNAL_UNITS = (("theta", "rad"), ("omega", "rad/s"), ("current", "A"))
@@ -37,6 +39,19 @@ def legend_band(lo: float, hi: float, entries: int) -> tuple[float, float]:
     return lo - 0.03 * span, hi + span * share / (1.0 - share)
 
 
+def tick_range(peak: float) -> tuple[float, float] | None:
+    """A symmetric y range for a residual of largest size ``peak`` = m x 10^k (1 <= m < 10) whose
+    gridlines get labels.  The viewer labels multiples of a power of ten, and only when they are
+    ~20 px apart: a ~150 px plot spanning more than ~7 steps, or whose data stop just short of a
+    step, shows only "0".  So: +/- 1.1 x peak when m <= 3 (at most 6.6 steps of 10^k, +/-10^k
+    inside), else +/- 1.15 x 10^(k+1) (two steps, the data filling 26-87 % of the height)."""
+    if not np.isfinite(peak) or peak <= 0.0:
+        return None
+    step = 10.0 ** np.floor(np.log10(peak))
+    half = 1.1 * peak if peak <= 3.0 * step else 1.15 * 10.0 * step
+    return (round(float(-half), 12), round(float(half), 12))
+
+
 def _time_series(name: str, origin: str, legend: bool = False, y_range: tuple[float, float] | None = None):
     import rerun.blueprint as rrb
 
@@ -46,15 +61,16 @@ def _time_series(name: str, origin: str, legend: bool = False, y_range: tuple[fl
         plot_legend=rrb.PlotLegend(corner="LeftTop", visible=legend))
 
 
-def _signal_rows(theta_range: tuple[float, float] | None):
+def _signal_rows(theta_range: tuple[float, float] | None, residual_ranges: tuple | None):
     """Three rows, each a signal with its residual beside it (same height), and the mode lane."""
     import rerun.blueprint as rrb
 
+    residual_ranges = residual_ranges or (None,) * len(SIGNAL_UNITS)
     rows = [rrb.Horizontal(_time_series(f"{sig} [{unit}]", f"/signals/{sig}", legend=sig == "theta",
                                         y_range=theta_range if sig == "theta" else None),
-                           _time_series(f"residual {sig} [{unit}]", f"/residuals/{sig}"),
+                           _time_series(f"residual {sig} [{unit}]", f"/residuals/{sig}", y_range=res_range),
                            column_shares=[3, 2])
-            for sig, unit in SIGNAL_UNITS]
+            for (sig, unit), res_range in zip(SIGNAL_UNITS, residual_ranges)]
     lane = rrb.StateTimelineView(origin="/mode", name="mode", time_view=rrb.TimeAxis(link="LinkToGlobal"))
     return rrb.Vertical(*rows, lane, row_shares=[5, 3, 3, 1.8])
 
@@ -85,19 +101,20 @@ def _events_view():
                           rrb.encodings.TextLogColumn("EntityPath", visible=False)]))
 
 
-def run_blueprint(theta_range: tuple[float, float] | None = None):
-    """The layout of ``<run>.rrd``; ``theta_range`` leaves the legend its band (``legend_band``)."""
+def run_blueprint(theta_range: tuple[float, float] | None = None, residual_ranges: tuple | None = None):
+    """The layout of ``<run>.rrd``; ``theta_range`` leaves the legend its band (``legend_band``),
+    ``residual_ranges`` (theta, omega, current; ``tick_range`` or None) label the residuals' axes."""
     import rerun.blueprint as rrb
 
     right = rrb.Vertical(_portrait("trajectory (I, w, theta)", "/trajectory"),
                          rrb.Tabs(rrb.TextDocumentView(origin="/stats", name="statistics"), _events_view()),
                          row_shares=[3, 2])
-    bp = rrb.Blueprint(rrb.Horizontal(_signal_rows(theta_range), right, column_shares=[3, 2]),
+    bp = rrb.Blueprint(rrb.Horizontal(_signal_rows(theta_range, residual_ranges), right, column_shares=[3, 2]),
                        *_panels(), auto_views=False)
     return stable_ids(bp, "run")
 
 
-def discovery_blueprint(theta_range: tuple[float, float] | None = None):
+def discovery_blueprint(theta_range: tuple[float, float] | None = None, residual_ranges: tuple | None = None):
     """The layout of ``discovery.rrd``: signals and residuals left, portraits before/after and the report right."""
     import rerun.blueprint as rrb
 
@@ -105,7 +122,7 @@ def discovery_blueprint(theta_range: tuple[float, float] | None = None):
         rrb.Horizontal(_portrait("before: base model (I, w, theta)", "/trajectory_before"),
                        _portrait("after: augmented model (I, w, theta)", "/trajectory_after")),
         rrb.TextDocumentView(origin="/report", name="report"), row_shares=[2, 3])
-    bp = rrb.Blueprint(rrb.Horizontal(_signal_rows(theta_range), right, column_shares=[5, 4]),
+    bp = rrb.Blueprint(rrb.Horizontal(_signal_rows(theta_range, residual_ranges), right, column_shares=[5, 4]),
                        *_panels(), auto_views=False)
     return stable_ids(bp, "discovery")
 

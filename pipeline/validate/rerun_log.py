@@ -32,7 +32,7 @@ import pandas as pd
 from pipeline.columns import column
 from pipeline.model.simulate import SimResult
 from pipeline.validate.compare import logged_dir, switch_indices
-from pipeline.validate.rerun_blueprint import RUN_VIEW_NAMES, legend_band, run_blueprint
+from pipeline.validate.rerun_blueprint import RUN_VIEW_NAMES, legend_band, run_blueprint, tick_range
 from pipeline.validate.rerun_io import (blueprint_chunks, rerun_executable, save_with_blueprint,  # noqa: F401
                                         verify_rrd, verify_rrds)
 from pipeline.validate.rerun_phase import log_phase_portrait
@@ -224,6 +224,16 @@ def theta_band(kin: pd.DataFrame, sims: dict[str, SimResult], guard: float, entr
     return round(lo, 3), round(hi, 3)
 
 
+def residual_ranges(kin: pd.DataFrame, sims) -> tuple:
+    """Each residual plot's y range (``tick_range`` of the largest residual of any simulation)."""
+    out = []
+    for name_in_kin, field, _unit in SIGNALS.values():
+        meas = _measured(kin, name_in_kin)
+        peak = np.nan if meas is None else max(float(np.nanmax(np.abs(meas - getattr(s, field)))) for s in sims)
+        out.append(tick_range(peak))
+    return tuple(out)
+
+
 def log_run(rec, name: str, kin: pd.DataFrame, sims: dict[str, SimResult], validation: dict,
             guard: float, derived: dict[str, dict[str, np.ndarray]] | None = None, period: float = 0.05) -> None:
     """Log one run into an open recording stream (no file handling here)."""
@@ -351,7 +361,8 @@ def write_rrd(target: Path, name: str, kin: pd.DataFrame, sims: dict[str, SimRes
 
     from pipeline.io.atomic import atomic_path
 
-    layout = blueprint_chunks(run_blueprint, theta_band(kin, sims, guard, legend_entries(sims)))
+    layout = blueprint_chunks(run_blueprint, theta_band(kin, sims, guard, legend_entries(sims)),
+                              residual_ranges(kin, sims.values()))
     with atomic_path(Path(target)) as tmp:
         rec = rr.RecordingStream("pdr", recording_id=name)
         save_with_blueprint(rec, tmp, layout)

@@ -229,3 +229,15 @@ def test_batch_verification_names_only_the_torn_files(rrd, tmp_path):
     assert verify_rrds([good, good]) == {}
     failed = verify_rrds([good, torn, good])
     assert list(failed) == [torn] and "rerun rrd verify failed" in failed[torn]
+
+
+def test_residual_ranges_hold_the_data_and_a_labelled_gridline():
+    from pipeline.validate.rerun_blueprint import tick_range
+
+    for peak in np.geomspace(1e-4, 50.0, 301):
+        lo, hi = tick_range(peak)
+        assert lo == -hi and hi >= peak
+        step = 10.0 ** np.floor(np.log10(hi))              # the largest power of ten inside
+        assert 2 * hi / step <= 7.0, peak                  # few enough gridlines for the viewer to label
+        assert peak / hi >= 0.26                           # and the data still fill a quarter of the plot
+    assert tick_range(0.0) is None and tick_range(float("nan")) is None
