@@ -12,11 +12,15 @@ Discovery (``discovery_blueprint``): the same rows for the measurement, the
 base and the augmented model, the residual before and after, and the phase
 portrait before and after, with the report beside them.
 
-Each layout takes only a few hashable arguments, so ``rerun_io.blueprint_chunks``
-builds each once per process.
+Each layout is built once per process (``rerun_io.blueprint_chunks``); what
+differs between runs, the y ranges of the angle plot and of the residuals, is
+added to each file's copy as view properties (``axis_ranges``), so runs share
+the layout.
 """
 
 from __future__ import annotations
+
+import functools
 
 import numpy as np
 
@@ -144,3 +148,30 @@ def side_by_side_blueprint(names: tuple[str, ...], theta_range: tuple[float, flo
                                     row_shares=[3, 2, 2, 1, 3]))
     bp = rrb.Blueprint(rrb.Horizontal(*columns), *_panels(), auto_views=False)
     return stable_ids(bp, "side-by-side/" + "/".join(names))
+
+
+@functools.lru_cache(maxsize=16)
+def view_ids(build, *args) -> dict[str, str]:
+    """Display name -> view id of a layout; the ids derive from positions (``stable_ids``), so
+    they are the ids in the layout's cached chunks."""
+    from rerun.blueprint.api import Container
+
+    out: dict[str, str] = {}
+
+    def walk(container) -> None:
+        for child in container.contents:
+            if isinstance(child, Container):
+                walk(child)
+            else:
+                out[child.name] = str(child.id)
+
+    walk(build(*args).root_container)
+    return out
+
+
+def axis_ranges(build, theta_range: tuple[float, float] | None, residual_ranges: tuple) -> dict[str, tuple]:
+    """View id -> y range of a layout with signal rows: the angle plot and the residuals
+    (theta, omega, current), those that have one."""
+    ids = view_ids(build)
+    names = ["theta [rad]"] + [f"residual {sig} [{unit}]" for sig, unit in SIGNAL_UNITS]
+    return {ids[n]: r for n, r in zip(names, (theta_range, *residual_ranges)) if r is not None}

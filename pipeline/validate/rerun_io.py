@@ -58,8 +58,10 @@ def blueprint_chunks(build: Callable, *args):
         return reader.store(store=reader.blueprints()[0]).stream().collect()
 
 
-def save_with_blueprint(rec, path: Path, chunks, application_id: str = "pdr") -> None:
-    """``rec.save(path, default_blueprint=...)`` from cached blueprint chunks.
+def save_with_blueprint(rec, path: Path, chunks, application_id: str = "pdr",
+                        y_ranges: dict[str, tuple[float, float]] | None = None) -> None:
+    """``rec.save(path, default_blueprint=...)`` from cached blueprint chunks, plus this file's
+    ``y_ranges`` (view id -> y axis range) logged as the views' ``ScalarAxis``.
 
     What ``rerun.sinks.save`` does, with the blueprint stream filled by
     ``send_chunks`` instead of by logging the blueprint again (rerun-sdk is
@@ -73,6 +75,12 @@ def save_with_blueprint(rec, path: Path, chunks, application_id: str = "pdr") ->
     stream = RecordingStream._from_native(bindings.new_blueprint(
         application_id=application_id, make_default=False, make_thread_default=False, default_enabled=True))
     rr.send_chunks(chunks, recording=stream)
+    if y_ranges:
+        import rerun.blueprint as rrb
+
+        stream.set_time("blueprint", sequence=0)
+        for view_id, y_range in y_ranges.items():
+            stream.log(f"view/{view_id}/ScalarAxis", rrb.archetypes.ScalarAxis(range=y_range))
     bindings.save(path=str(path), default_blueprint=stream.memory_recording().storage,
                   recording=rec.to_native(), write_footer=True)
 

@@ -32,7 +32,7 @@ import pandas as pd
 from pipeline.columns import column
 from pipeline.model.simulate import SimResult
 from pipeline.validate.compare import logged_dir, switch_indices
-from pipeline.validate.rerun_blueprint import RUN_VIEW_NAMES, legend_band, run_blueprint, tick_range
+from pipeline.validate.rerun_blueprint import RUN_VIEW_NAMES, axis_ranges, legend_band, run_blueprint, tick_range
 from pipeline.validate.rerun_io import (blueprint_chunks, rerun_executable, save_with_blueprint,  # noqa: F401
                                         verify_rrd, verify_rrds)
 from pipeline.validate.rerun_phase import log_phase_portrait
@@ -215,8 +215,8 @@ def _events(rec, rows: list[tuple[float, str, str]]) -> None:
 
 
 def theta_band(kin: pd.DataFrame, sims: dict[str, SimResult], guard: float, entries: int) -> tuple[float, float]:
-    """The angle plot's y range: the data and the guards, rounded out to 0.1 rad (so runs share a few
-    cached layouts), with the legend's band on top."""
+    """The angle plot's y range: the data and the guards, rounded out to 0.1 rad, with the legend's
+    band on top."""
     values = [np.abs(s.theta) for s in sims.values()] + [np.abs(column(kin, "theta_rad", dtype=float))]
     peak = max(guard, *(float(np.nanmax(v)) for v in values))
     peak = float(np.ceil(peak * 10.0) / 10.0)
@@ -361,11 +361,11 @@ def write_rrd(target: Path, name: str, kin: pd.DataFrame, sims: dict[str, SimRes
 
     from pipeline.io.atomic import atomic_path
 
-    layout = blueprint_chunks(run_blueprint, theta_band(kin, sims, guard, legend_entries(sims)),
-                              residual_ranges(kin, sims.values()))
+    ranges = axis_ranges(run_blueprint, theta_band(kin, sims, guard, legend_entries(sims)),
+                         residual_ranges(kin, sims.values()))
     with atomic_path(Path(target)) as tmp:
         rec = rr.RecordingStream("pdr", recording_id=name)
-        save_with_blueprint(rec, tmp, layout)
+        save_with_blueprint(rec, tmp, blueprint_chunks(run_blueprint), y_ranges=ranges)
         log_run(rec, name, kin, sims, validation, guard, derived, period)
         rec.flush()
         rec.disconnect()

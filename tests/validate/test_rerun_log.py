@@ -179,23 +179,30 @@ def test_phase_portrait_scale_is_below_the_views_origin_and_uses_the_smoothed_cu
     assert any("[A]" in s for s in labels) and any("[rad/s]" in s for s in labels)
 
 
-def _blueprint_rows(path):
-    reader = RrdReader(path)
-    blueprints = reader.blueprints()
-    assert len(blueprints) == 1
-    return [ch.to_record_batch() for ch in reader.stream(store=blueprints[0]).to_chunks()]
-
-
 def test_blueprint_is_saved_with_every_view_and_opens_at_the_end(rrd):
     path, _, _ = rrd
-    names, play = set(), []
-    for rb in _blueprint_rows(path):
+    from pipeline.validate.rerun_blueprint import run_blueprint, tick_range, view_ids
+
+    names, play, ranges = set(), [], {}
+    reader = RrdReader(path)
+    assert len(reader.blueprints()) == 1
+    for ch in reader.stream(store=reader.blueprints()[0]).to_chunks():
+        rb = ch.to_record_batch()
         if "ViewBlueprint:display_name" in rb.schema.names:
             names.update(v[0] for v in rb.column("ViewBlueprint:display_name").to_pylist() if v)
         if "TimePanelBlueprint:play_state" in rb.schema.names:
             play += rb.column("TimePanelBlueprint:play_state").to_pylist()
+        if "ScalarAxis:range" in rb.schema.names:
+            ranges[ch.entity_path.split("/")[2]] = rb.column("ScalarAxis:range").to_pylist()[0][0]
     assert names == set(VIEW_NAMES)
     assert play == [[3]]           # PlayState.Following: the cursor at the recording's end (viewer test)
+    by_name = {name: ranges.get(view_id) for name, view_id in view_ids(run_blueprint).items()}
+    _, kin, sims = rrd
+    residual = np.abs(kin["current_a"].to_numpy() - sims["replay"].current_measured).max()
+    assert by_name["residual current [A]"] == list(tick_range(residual))
+    lo, hi = by_name["theta [rad]"]
+    assert lo < -np.abs(kin["theta_rad"]).max() and hi > 2 * np.abs(kin["theta_rad"]).max()   # the legend's band
+    assert by_name["omega [rad/s]"] is None
 
 
 def test_two_renders_of_a_run_compare_equal_and_another_run_does_not(rrd, departing, tmp_path):
