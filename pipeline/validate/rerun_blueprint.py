@@ -145,7 +145,7 @@ def side_by_side_blueprint(names: tuple[str, ...], theta_range: tuple[float, flo
         lane = rrb.StateTimelineView(origin=f"{root}/mode", name=f"{name}: mode",
                                      time_view=rrb.TimeAxis(link="LinkToGlobal"))
         columns.append(rrb.Vertical(*plots, lane, _portrait(f"{name}: trajectory (I, w, theta)", f"{root}/trajectory"),
-                                    row_shares=[3, 2, 2, 1, 3]))
+                                    row_shares=[4, 2.5, 2.5, 1.6, 3]))
     bp = rrb.Blueprint(rrb.Horizontal(*columns), *_panels(), auto_views=False)
     return stable_ids(bp, "side-by-side/" + "/".join(names))
 

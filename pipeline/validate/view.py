@@ -59,7 +59,8 @@ def side_by_side_rrd(rrds: dict[str, Path], target: Path) -> Path:
                 peak = max(peak, float(np.nanmax(np.abs(values))))
             moved.append(chunk.with_entity_path(f"/runs/{name}{chunk.entity_path}"))
     peak = float(np.ceil(peak * 10.0) / 10.0) or 1.0
-    layout = blueprint_chunks(side_by_side_blueprint, tuple(rrds), legend_band(-peak, peak, 5))
+    # the band for the longest legend (closed loop and replay apart: 7 lines)
+    layout = blueprint_chunks(side_by_side_blueprint, tuple(rrds), legend_band(-peak, peak, 7))
     with atomic_path(Path(target)) as tmp:
         rec = rr.RecordingStream("pdr", recording_id="side-by-side:" + "+".join(rrds))
         save_with_blueprint(rec, tmp, layout)

@@ -12,10 +12,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 from rerun.chunk import RrdReader
+
 from pipeline.config import default_config
 from pipeline.model.effects import make_effect
-from pipeline.validate.view import NO_DISPLAY, display_available, side_by_side_rrd
 from pipeline.validate.stage import validate_run
+from pipeline.validate.view import NO_DISPLAY, display_available, side_by_side_rrd
+from tests.validate.net import free_port_pair
 from tests.validate.synthetic import synthetic_kinematics, synthetic_run
 
 PDR = str(Path(sys.executable).with_name("pdr"))      # the console command, as a user runs it
@@ -72,25 +74,9 @@ def test_side_by_side_recording_holds_every_run_under_its_name(processed, tmp_pa
             "delayed: trajectory (I, w, theta)"} <= views
 
 
-def _free_pair() -> int:
-    """A port P with P + 1 also free on 127.0.0.1."""
-    for _ in range(50):
-        with socket.socket() as s:
-            s.bind(("127.0.0.1", 0))
-            port = s.getsockname()[1]
-        with socket.socket() as a, socket.socket() as b:
-            try:
-                a.bind(("127.0.0.1", port))
-                b.bind(("127.0.0.1", port + 1))
-            except OSError:
-                continue
-        return port
-    raise RuntimeError("no two adjacent free ports")
-
-
 @pytest.mark.slow
 def test_web_serves_the_viewer_page_and_the_side_by_side_recording(processed, tmp_path):
-    port = _free_pair()
+    port = free_port_pair()
     proc = subprocess.Popen([PDR, "view", "--web", "--port", str(port),
                              "--processed", str(processed), "clean", "delayed"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)

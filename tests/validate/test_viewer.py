@@ -15,7 +15,6 @@ then ignores it) must fail, so the check is known to be able to.
 
 import copy
 import os
-import socket
 import time
 
 import numpy as np
@@ -27,23 +26,18 @@ from typer.testing import CliRunner
 
 from pipeline.cli import app
 from pipeline.model.effects import make_effect
+from pipeline.runs import RunPaths
 from pipeline.validate.rerun_blueprint import DISCOVERY_VIEW_NAMES
 from pipeline.validate.rerun_io import rerun_executable, save_with_blueprint
 from pipeline.validate.rerun_log import VIEW_NAMES
 from pipeline.validate.stage import validate_run
-from pipeline.runs import RunPaths
 from tests.discover.synthetic import rig_kinematics
+from tests.validate.net import free_port, free_port_pair
 
 SCREENSHOT_DIR_ENV = "PDR_VIEWER_SCREENSHOT_DIR"   # keep the screenshots somewhere to look at
 TOP_DOWN = {"kind": "Orbital", "position": [0.0, 0.0, 6.0], "look_target": [0.0, 0.0, 0.0], "eye_up": [0.0, 1.0, 0.0]}
 
 pytestmark = [pytest.mark.viewer, pytest.mark.slow]
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def _local_rerun(folder) -> str:
@@ -103,7 +97,7 @@ def viewer(tmp_path_factory):
     from rerun.experimental import ViewerClient
 
     os.environ.setdefault("WGPU_BACKEND", "vulkan")
-    port = _free_port()
+    port = free_port()
     client = ViewerClient.spawn(headless=True, port=port, hide_welcome_screen=True,
                                 executable_path=_local_rerun(tmp_path_factory.mktemp("bin")))
     try:
@@ -217,8 +211,27 @@ def _unscaled_recording(viewer, path) -> None:
     assert _top_down(viewer, recording, portrait, "unscaled-top-down.png") < 0.5   # 0.65 A by 5 rad/s: thin strips
 
 
-def test_recordings_open_on_their_layouts_with_the_portraits_scaled(viewer, recordings, shots):
+def _side_by_side_over_http(viewer, run, folder, shots) -> None:
+    """What ``pdr view --web A B`` serves, loaded by the viewer from its HTTP address: every view
+    of both columns there and healthy."""
+    from pipeline.validate.view import serve_web, side_by_side_rrd
+
+    both = side_by_side_rrd({"a": run, "b": run}, folder / "a+b.rrd")
+    server = serve_web(both, port=free_port_pair())
+    try:
+        state, recording = _open(viewer, server.recording_url)
+    finally:
+        server.stop()
+    names = {v.name for v in state.views}
+    assert {"a: theta [rad]", "b: theta [rad]", "a: mode", "b: trajectory (I, w, theta)"} <= names
+    assert all(v.reports == [] for v in state.views)
+    assert recording.current_time == next(tl.end for tl in recording.timelines if tl.name == "time")
+    assert _screenshot(viewer, shots, "side-by-side.png").std() > 10
+
+
+def test_recordings_open_on_their_layouts_with_the_portraits_scaled(viewer, recordings, shots, tmp_path):
     """One test, so that one pytest-xdist worker starts one viewer and makes the recordings once."""
     _run_recording(viewer, recordings["run"], shots)
     _discovery_recording(viewer, recordings["discovery"], shots)
     _unscaled_recording(viewer, recordings["unscaled"])
+    _side_by_side_over_http(viewer, recordings["run"], tmp_path, shots)
