@@ -308,8 +308,9 @@ def stats_markdown(name: str, validation: dict, derived: dict[str, dict[str, np.
     ways = ("closed_loop", "replay")
     lines = [f"# {name}", ""]
     if coincide is not None and coincide <= COINCIDENCE_TOL:
+        apart = "are identical" if coincide == 0.0 else f"differ by at most {coincide:.1g} of a signal's peak"
         lines += [f"Closed loop = replay: the closed loop switches at the logged samples; the two simulations "
-                  f"differ by at most {coincide:.1g} of a signal's peak and are drawn as one line.", ""]
+                  f"{apart} and are drawn as one line.", ""]
     lines += ["## Errors (measured - simulated)", "",
              "| signal | way | MSE | RMSE | fit % |", "|---|---|---|---|---|"]
     for way in ways:
