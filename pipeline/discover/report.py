@@ -1,5 +1,6 @@
 """What discovery hands back: JSON, an ``[effects]`` TOML snippet, a Markdown report with
-PNG plots, and a Rerun recording with measurement, base and augmented model overlaid.
+PNG plots, and a Rerun recording with measurement, base and augmented model overlaid
+(``rerun_report``).
 
 Everything is rendered from a ``Discovery`` (pure functions returning text or bytes);
 ``write_outputs`` is the only function that touches the disk, atomically.  PNGs carry
@@ -15,8 +16,9 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.config import effects_toml_snippet
+from pipeline.discover.rerun_report import write_rrd
 from pipeline.discover.stage import Discovery, augmented_effects
-from pipeline.io.atomic import atomic_path, write_bytes, write_json, write_text
+from pipeline.io.atomic import write_bytes, write_json, write_text
 
 FILES = {"json": "discovery.json", "toml": "effects.toml", "markdown": "report.md",
          "signals_png": "signals.png", "residuals_png": "residuals.png", "localisation_png": "localisation.png",
@@ -207,47 +209,6 @@ def _tables_md(d: Discovery) -> list[str]:
             out.append(f"| {label} | {b['n']} | {cells} |")
         out.append("")
     return out
-
-
-def _rrd_blueprint():
-    import rerun.blueprint as rrb
-
-    def series(name: str, origin: str) -> rrb.TimeSeriesView:
-        return rrb.TimeSeriesView(origin=origin, name=name)
-
-    return rrb.Blueprint(rrb.Horizontal(
-        rrb.Vertical(*(series(f"{s} [{u}]", f"/signals/{s}") for s, _c, _f, u in _SIGNALS)),
-        rrb.Vertical(*(series(f"residual {s} [{u}]", f"/residuals/{s}") for s, _c, _f, u in _SIGNALS),
-                     rrb.TextDocumentView(origin="/report", name="report")),
-    ), auto_views=False)
-
-
-def write_rrd(target: Path, d: Discovery, report_md: str, way: str = "replay") -> None:
-    """Measurement, base and augmented model overlaid, and the residual before/after, saved
-    atomically and checked with ``rerun rrd verify``."""
-    import rerun as rr
-
-    from pipeline.validate.rerun_log import TIMELINE, log_signal, verify_rrd
-
-    t = d.meas.t
-    colors = {"measured": (200, 200, 200), "base": (255, 140, 0), "augmented": (0, 170, 255)}
-    with atomic_path(Path(target)) as tmp:
-        rec = rr.RecordingStream("pdr-discover", recording_id=f"discover-{d.meas.name}")
-        rec.save(tmp, default_blueprint=_rrd_blueprint())
-        every = rr.TimeColumn(TIMELINE, duration=t)
-        for sig, column, field, _unit in _SIGNALS:
-            y = _measured(d, column)
-            models = {"base": getattr(d.base[way], field), "augmented": getattr(d.final[way], field)}
-            lines = {} if y is None else {"measured": (y, colors["measured"], 2.0)}
-            lines.update({f"{label} model": (v, colors[label], 1.5) for label, v in models.items()})
-            log_signal(rec, f"signals/{sig}", every, lines)
-            if y is not None:
-                log_signal(rec, f"residuals/{sig}", every, {"before": (y - models["base"], colors["base"], 1.5),
-                                                         "after": (y - models["augmented"], colors["augmented"], 1.5)})
-        rec.log("report", rr.TextDocument(report_md, media_type=rr.MediaType.MARKDOWN), static=True)
-        rec.flush()
-        rec.disconnect()
-        verify_rrd(tmp)
 
 
 def write_outputs(out_dir: Path, d: Discovery, doc: dict, *, rrd: bool = True) -> dict[str, Path]:

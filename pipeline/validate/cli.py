@@ -83,19 +83,44 @@ def gate(
 
 
 def view(
-    name: str = typer.Argument(..., help="Run name (or a path to an .rrd file)."),
+    names: list[str] = typer.Argument(..., help="Run names (or paths to .rrd files); several open side by side."),
     processed: Path = typer.Option(DEFAULT_PROCESSED, "--processed", help="Folder of processed runs."),
+    web: bool = typer.Option(False, "--web", help="Serve Rerun's web viewer over HTTP and print its address "
+                             "(for a machine without a display)."),
+    bind: str = typer.Option("127.0.0.1", "--bind", help="With --web: the address to listen on "
+                             "(0.0.0.0 for every interface)."),
+    port: int = typer.Option(9090, "--port", help="With --web: the web viewer's port; the recording is served "
+                             "on the next one."),
 ) -> None:
-    """Open a run's Rerun recording (with its saved layout) in the Rerun viewer.
+    """Open runs' Rerun recordings (with their saved layout) in the Rerun viewer; several side by side.
 
-    Example: pdr view example
+    Example: pdr view paper_clean friction_declared      (or, over SSH: pdr view --web paper_clean)
     """
-    import subprocess
+    import time
 
     from pipeline.runs import run_paths
-    from pipeline.validate.rerun_log import rerun_executable
+    from pipeline.validate.view import NO_DISPLAY, display_available, open_native, recording_to_open, serve_web
 
-    path = Path(name) if name.endswith(".rrd") else run_paths(processed, name).rrd
-    if not path.is_file():
-        raise PdrError("no Rerun recording: validate the run first (pdr run or pdr validate)", path=path)
-    subprocess.Popen([rerun_executable(), str(path)])
+    rrds: dict[str, Path] = {}
+    for name in names:
+        path = Path(name) if name.endswith(".rrd") else run_paths(processed, name).rrd
+        if not path.is_file():
+            raise PdrError("no Rerun recording: validate the run first (pdr run or pdr validate)", path=path)
+        key = path.stem if name.endswith(".rrd") else name
+        rrds[key if key not in rrds else f"{key}-{len(rrds) + 1}"] = path
+    if not web and not display_available():
+        raise PdrError(NO_DISPLAY)
+    path = recording_to_open(rrds)
+    if not web:
+        open_native(path)
+        return
+    server = serve_web(path, bind=bind, port=port)
+    typer.echo(f"pdr view: {', '.join(rrds)} at {server.url}\n  Ctrl-C stops; from another machine: "
+               f"ssh -L {port}:localhost:{port} -L {port + 1}:localhost:{port + 1} THIS_HOST, then open the address")
+    try:
+        while True:
+            time.sleep(3600)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        server.stop()

@@ -1,19 +1,21 @@
 """One Rerun recording per run: measured vs simulated, the guards, the 3-D trajectory.
 
-What the viewer shows (the blueprint is saved inside the ``.rrd``, so it
-opens on this layout):
+What the viewer shows (the layout, ``rerun_blueprint.run_blueprint``, is saved
+inside the ``.rrd``, so it opens on it):
 
-- theta, omega, current: measured, closed-loop and replay simulations on one
-  time axis (one entity per signal, ``signals/theta``, whose three scalar
-  instances are the three series; ``residuals/theta`` likewise), the guards at
-  +/- theta_g on the angle plot, switch and guard-crossing events as points;
-- the trajectory in (current, omega, theta) for measured and simulated runs
-  with the two guard planes theta = +/- theta_g (the paper's Figs. 7 and 8).
-  The three axes differ by an order of magnitude (0.5 A, 10 rad/s, 1.2 rad),
-  so the data stay in SI units and a ``Transform3D`` scale on ``trajectory``
-  maps each axis's extent to +/-1; labelled arrows give the axes and units;
-- a mode lane (``StateChange``), an event log, the residuals, and a text
-  panel with the metrics, per-phase and overshoot statistics.
+- theta, omega, current: the measurement over the simulations on one time
+  axis (one entity per signal, ``signals/theta``, whose scalar instances are
+  the series), each with its residual beside it; the guards at +/- theta_g,
+  switch and guard-crossing points on the angle plot;
+- when the closed loop switches at exactly the logged samples it is the same
+  computation as the replay (``coincidence``): one series "closed loop = replay"
+  is drawn instead of two lines on top of each other, with one residual and
+  one mode lane;
+- the phase portrait in (current, omega, theta) with the guard planes
+  (``rerun_phase``), the measured curve from the derive stage's smoothed current;
+- a mode lane (``StateChange``), an event log (WARN only for what breaks the
+  controller's rule), and a text panel with the metrics, per-phase and
+  overshoot statistics.
 
 Everything with time is sent with ``send_columns`` (one call per entity), which
 is what keeps a 500-sample run to a few milliseconds of logging.
@@ -22,20 +24,28 @@ is what keeps a 500-sample run to a few milliseconds of logging.
 from __future__ import annotations
 
 import functools
-import shutil
-import subprocess
-import tempfile
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from pipeline.columns import column
-from pipeline.errors import PdrError
 from pipeline.model.simulate import SimResult
 from pipeline.validate.compare import logged_dir, switch_indices
+from pipeline.validate.rerun_blueprint import RUN_VIEW_NAMES, axis_ranges, legend_band, run_blueprint, tick_range
+from pipeline.validate.rerun_io import (blueprint_chunks, rerun_executable, save_with_blueprint,  # noqa: F401
+                                        verify_rrd, verify_rrds)
+from pipeline.validate.rerun_phase import log_phase_portrait
 
 TIMELINE = "time"
+VIEW_NAMES = RUN_VIEW_NAMES
+# Closed loop and replay are drawn as one series when every command agrees and no signal differs
+# by more than this share of its peak: 1e-9 of 1.2 rad is six orders below an encoder step,
+# invisible at any zoom, and far above the ~1e-15 by which the same computation can differ.
+COINCIDENCE_TOL = 1e-9
+# A logged reversal counts as "at the guard" within this much of it: the encoder's steps (1e-3 rad at
+# x4 decoding, 4e-3 at x1) put the sampled angle up to a step on the near side of the true one.
+GUARD_SLACK_RAD = 0.01
 
 
 def _rgba(r: int, g: int, b: int, a: int = 255) -> int:
@@ -43,49 +53,40 @@ def _rgba(r: int, g: int, b: int, a: int = 255) -> int:
     return (r << 24) | (g << 16) | (b << 8) | a
 
 
-MEASURED, CLOSED, REPLAY, GUARD = _rgba(200, 200, 200), _rgba(255, 140, 0), _rgba(0, 170, 255), _rgba(230, 60, 60)
-GUARD_PLANE = _rgba(230, 60, 60, 70)
-SERIES = {"measured": MEASURED, "closed_loop": CLOSED, "replay": REPLAY}
+RGB = {"measured": (230, 230, 230), "closed_loop": (255, 140, 0), "replay": (0, 170, 255),
+       "guard": (230, 60, 60)}
+MEASURED, CLOSED, REPLAY, GUARD = (_rgba(*RGB[k]) for k in ("measured", "closed_loop", "replay", "guard"))
 # signal -> (kinematics column, SimResult field, unit)
 SIGNALS = {"theta": ("theta_rad", "theta", "rad"), "omega": ("omega_rad_s", "omega", "rad/s"),
            "current": ("current_a", "current_measured", "A")}
 MODE_NAMES = {1: "q1 (u = +V)", -1: "q2 (u = -V)", 0: "off"}
-
-# The views of the saved blueprint, by name (the viewer test checks each is present).
-VIEW_NAMES = ("theta [rad]", "omega [rad/s]", "current [A]", "mode", "trajectory (I, w, theta)",
-              "residual theta [rad]", "residual omega [rad/s]", "residual current [A]", "statistics", "events")
+# The mode lane's states: raw value, label drawn on the lane (short: a lane segment is ~1 s wide), colour.
+MODE_STATES = {1: ("q1", "q1 +V", (60, 160, 90)), -1: ("q2", "q2 -V", (150, 90, 210)), 0: ("off", "off", (90, 90, 90))}
 
 
-def blueprint():
-    """The layout the viewer opens on: signals left, 3-D trajectory and tabs right."""
-    import rerun.blueprint as rrb
+def coincidence(a: SimResult, b: SimResult) -> float | None:
+    """The largest difference between two simulations, as a share of each signal's peak;
+    None when their commands differ at any sample."""
+    if not np.array_equal(a.dir, b.dir):
+        return None
+    worst = 0.0
+    for field in ("theta", "omega", "current_measured"):
+        x, y = getattr(a, field), getattr(b, field)
+        peak = max(float(np.max(np.abs(x))), float(np.max(np.abs(y))), 1e-300)
+        worst = max(worst, float(np.max(np.abs(x - y))) / peak)
+    return worst
 
-    def series(name: str, origin: str) -> rrb.TimeSeriesView:
-        return rrb.TimeSeriesView(origin=origin, name=name,
-                                  plot_legend=rrb.PlotLegend(corner=rrb.Corner2D.RightTop, visible=True))
 
-    left = rrb.Vertical(
-        series("theta [rad]", "/signals/theta"),
-        series("omega [rad/s]", "/signals/omega"),
-        series("current [A]", "/signals/current"),
-        rrb.StateTimelineView(origin="/mode", name="mode"),
-        row_shares=[3, 3, 3, 2],
-    )
-    right = rrb.Vertical(
-        rrb.Spatial3DView(origin="/trajectory", name="trajectory (I, w, theta)",
-                          background=rrb.Background(color=(20, 20, 24))),
-        rrb.Tabs(
-            rrb.Vertical(series("residual theta [rad]", "/residuals/theta"),
-                         series("residual omega [rad/s]", "/residuals/omega"),
-                         series("residual current [A]", "/residuals/current"), name="residuals"),
-            rrb.TextDocumentView(origin="/stats", name="statistics"),
-            rrb.TextLogView(origin="/events", name="events"),
-        ),
-        row_shares=[3, 2],
-    )
-    return rrb.Blueprint(rrb.Horizontal(left, right, column_shares=[3, 2]),
-                         rrb.TimePanel(state="collapsed"), rrb.SelectionPanel(state="collapsed"),
-                         rrb.BlueprintPanel(state="collapsed"), auto_views=False)
+def ways_coincide(sims: dict[str, SimResult]) -> bool:
+    c = coincidence(sims["closed_loop"], sims["replay"])
+    return c is not None and c <= COINCIDENCE_TOL
+
+
+def model_series(sims: dict[str, SimResult]) -> dict[str, tuple[SimResult, tuple]]:
+    """The model lines to draw: label -> (simulation, RGB colour)."""
+    if ways_coincide(sims):
+        return {"closed loop = replay": (sims["closed_loop"], RGB["closed_loop"])}
+    return {"closed loop": (sims["closed_loop"], RGB["closed_loop"]), "replay": (sims["replay"], RGB["replay"])}
 
 
 def _measured(kin: pd.DataFrame, name: str) -> np.ndarray | None:
@@ -107,18 +108,8 @@ def _series_style(kind: str, names: tuple[str, ...], colors: tuple, widths: tupl
     return rr.SeriesLines(names=list(names), colors=packed, widths=list(widths))
 
 
-def _scalars(rec, path: str, t: np.ndarray, values: np.ndarray, name: str, color, width: float = 1.5) -> None:
-    """One time series (its non-finite samples left out)."""
-    import rerun as rr
-
-    ok = np.isfinite(values)
-    rec.log(path, _series_style("lines", (name,), (color,), (width,)), static=True)
-    rec.send_columns(path, indexes=[rr.TimeColumn(TIMELINE, duration=t[ok])],
-                     columns=rr.Scalars.columns(scalars=values[ok]))
-
-
-def log_signal(rec, path: str, time_column, series: dict[str, tuple[np.ndarray, int, float]]) -> None:
-    """Several series of one signal (measured, closed loop, replay) as one entity, one scalar instance each.
+def log_signal(rec, path: str, time_column, series: dict[str, tuple[np.ndarray, int | tuple, float]]) -> None:
+    """Several series of one signal as one entity, one scalar instance each, drawn in order (the last on top).
 
     One row per sample instead of one per sample and series: a third of the
     rows (each costs rerun a 16-byte row id and a time), one log call instead
@@ -134,7 +125,18 @@ def log_signal(rec, path: str, time_column, series: dict[str, tuple[np.ndarray, 
     rec.send_columns(path, indexes=[time_column], columns=rr.Scalars.columns(scalars=values))
 
 
-def _points(rec, path: str, t: np.ndarray, values: np.ndarray, name: str, color, marker: str) -> None:
+def log_guards(rec, path: str, t: np.ndarray, guard: float) -> None:
+    """The guards +/- theta_g as one entity of two instances under one name (one legend entry)."""
+    import rerun as rr
+
+    ends = t[[0, -1]]          # a guard is a straight line: its two ends are enough
+    name = f"guards +/-{guard:.3f} rad"
+    rec.log(path, _series_style("lines", (name, name), (GUARD, GUARD), (1.0, 1.0)), static=True)
+    rec.send_columns(path, indexes=[rr.TimeColumn(TIMELINE, duration=ends)],
+                     columns=rr.Scalars.columns(scalars=np.array([[guard, -guard]] * 2)))
+
+
+def log_points(rec, path: str, t: np.ndarray, values: np.ndarray, name: str, color, marker: str) -> None:
     import rerun as rr
 
     rec.log(path, _series_style("points", (name,), (color,), marker=marker), static=True)
@@ -143,13 +145,24 @@ def _points(rec, path: str, t: np.ndarray, values: np.ndarray, name: str, color,
                          columns=rr.Scalars.columns(scalars=values))
 
 
-def _mode_lane(rec, path: str, t: np.ndarray, d: np.ndarray) -> None:
+def log_mode_lane(rec, path: str, t: np.ndarray, d: np.ndarray) -> None:
+    """The command as a state lane, one colour per mode."""
     import rerun as rr
 
+    rec.log(path, _mode_configuration(), static=True)
     change = np.concatenate([[0], np.flatnonzero(d[1:] != d[:-1]) + 1])
-    states = [MODE_NAMES[int(v)] for v in d[change]]
+    states = [MODE_STATES[int(v)][0] for v in d[change]]
     rec.send_columns(path, indexes=[rr.TimeColumn(TIMELINE, duration=t[change])],
                      columns=rr.StateChange.columns(state=states))
+
+
+@functools.lru_cache(maxsize=1)
+def _mode_configuration():
+    import rerun as rr
+
+    values, labels, colors = zip(*MODE_STATES.values())
+    return rr.StateConfiguration(values=list(values), labels=list(labels),
+                                 colors=np.array([_rgba(*c) for c in colors], dtype=np.uint32))
 
 
 def guard_crossings(theta: np.ndarray, guard: float) -> np.ndarray:
@@ -158,62 +171,126 @@ def guard_crossings(theta: np.ndarray, guard: float) -> np.ndarray:
     return np.flatnonzero(outside[1:] & ~outside[:-1]) + 1
 
 
-def _events(rec, t: np.ndarray, theta: np.ndarray, d: np.ndarray, sim: SimResult, guard: float) -> None:
-    import rerun as rr
+def event_rows(t: np.ndarray, theta: np.ndarray, d: np.ndarray, sims: dict[str, SimResult], guard: float,
+               period: float) -> list[tuple[float, str, str]]:
+    """The event log: (time, text, level), time-ordered.
 
+    INFO: logged switches and guard crossings, what a healthy run is made of.
+    DEBUG: the closed loop's own switches (listed only when it departs from the replay).
+    WARN: what breaks the controller's rule -- a logged q1/q2 reversal with the
+    angle inside the guards, a guard reached without the command reversing
+    within a sample of it (the encoder's step can put the sampled crossing one
+    sample either side), a closed-loop switch more than one control period
+    from every logged one.
+    """
     rows: list[tuple[float, str, str]] = []
-    for k in switch_indices(d):
-        rows.append((t[k], f"switch {MODE_NAMES[int(d[k - 1])]} -> {MODE_NAMES[int(d[k])]} (logged), "
-                           f"theta = {theta[k]:+.3f} rad", "INFO"))
-    for k in switch_indices(sim.dir):
-        rows.append((t[k], f"switch -> {MODE_NAMES[int(sim.dir[k])]} (closed-loop simulation), "
-                           f"theta = {sim.theta[k]:+.3f} rad", "DEBUG"))
+    sw = switch_indices(d)
+    for k in sw:
+        a, b = int(d[k - 1]), int(d[k])
+        inside = a * b == -1 and abs(theta[k]) < guard - GUARD_SLACK_RAD
+        rows.append((t[k], f"switch {MODE_NAMES[a]} -> {MODE_NAMES[b]} (logged), theta = {theta[k]:+.3f} rad"
+                     + (" inside the guards" if inside else ""), "WARN" if inside else "INFO"))
     for k in guard_crossings(theta, guard):
-        rows.append((t[k], f"guard crossed (measured): theta = {theta[k]:+.3f} rad, |theta| >= {guard:.4f}", "WARN"))
-    if not rows:
-        return
+        reversed_ = np.any((sw >= k - 1) & (sw <= k + 1)) or d[k] == 0
+        rows.append((t[k], f"guard reached (measured): theta = {theta[k]:+.3f} rad"
+                     + ("" if reversed_ else ", the logged command did not reverse"), "INFO" if reversed_ else "WARN"))
+    if not ways_coincide(sims):
+        cl = sims["closed_loop"]
+        for k in switch_indices(cl.dir):
+            slip = float(np.min(np.abs(t[sw] - t[k]))) if len(sw) else np.inf
+            late = slip > 1.5 * period
+            rows.append((t[k], f"switch -> {MODE_NAMES[int(cl.dir[k])]} (closed-loop simulation), theta = "
+                         f"{cl.theta[k]:+.3f} rad" + (f", {slip:.2f} s from any logged switch" if late else ""),
+                         "WARN" if late else "DEBUG"))
     rows.sort(key=lambda r: r[0])
-    rec.send_columns("events", indexes=[rr.TimeColumn(TIMELINE, duration=[r[0] for r in rows])],
-                     columns=rr.TextLog.columns(text=[r[1] for r in rows], level=[r[2] for r in rows]))
+    return [(tk, f"t = {tk:7.3f} s  {text}", level) for tk, text, level in rows]
 
 
-def _extent(*arrays: np.ndarray | None, floor: float) -> float:
-    vals = [np.nanmax(np.abs(a)) for a in arrays if a is not None and np.isfinite(a).any()]
-    return max([floor, *vals]) * 1.05
-
-
-def _trajectory(rec, kin: pd.DataFrame, sims: dict[str, SimResult], guard: float) -> None:
+def _events(rec, rows: list[tuple[float, str, str]]) -> None:
     import rerun as rr
 
+    if rows:
+        rec.send_columns("events", indexes=[rr.TimeColumn(TIMELINE, duration=[r[0] for r in rows])],
+                         columns=rr.TextLog.columns(text=[r[1] for r in rows], level=[r[2] for r in rows]))
+
+
+def theta_band(kin: pd.DataFrame, sims: dict[str, SimResult], guard: float, entries: int) -> tuple[float, float]:
+    """The angle plot's y range: the data and the guards, rounded out to 0.1 rad, with the legend's
+    band on top."""
+    values = [np.abs(s.theta) for s in sims.values()] + [np.abs(column(kin, "theta_rad", dtype=float))]
+    peak = max(guard, *(float(np.nanmax(v)) for v in values))
+    peak = float(np.ceil(peak * 10.0) / 10.0)
+    lo, hi = legend_band(-peak, peak, entries)
+    return round(lo, 3), round(hi, 3)
+
+
+def residual_ranges(kin: pd.DataFrame, sims) -> tuple:
+    """Each residual plot's y range (``tick_range`` of the largest residual of any simulation)."""
+    out = []
+    for name_in_kin, field, _unit in SIGNALS.values():
+        meas = _measured(kin, name_in_kin)
+        peak = np.nan if meas is None else max(float(np.nanmax(np.abs(meas - getattr(s, field)))) for s in sims)
+        out.append(tick_range(peak))
+    return tuple(out)
+
+
+def log_run(rec, name: str, kin: pd.DataFrame, sims: dict[str, SimResult], validation: dict,
+            guard: float, derived: dict[str, dict[str, np.ndarray]] | None = None, period: float = 0.05) -> None:
+    """Log one run into an open recording stream (no file handling here)."""
+    import rerun as rr
+
+    t = column(kin, "t_s", dtype=float)
+    every = rr.TimeColumn(TIMELINE, duration=t)
+    d = logged_dir(kin)
+    models = model_series(sims)
+    for sig, (name_in_kin, field, _unit) in SIGNALS.items():
+        meas = _measured(kin, name_in_kin)
+        lines = {label: (getattr(sim, field), color, 1.5) for label, (sim, color) in models.items()}
+        if meas is not None:
+            lines["measured"] = (meas, RGB["measured"], 1.5)
+        log_signal(rec, f"signals/{sig}", every, lines)
+        if meas is not None:
+            residuals = {f"measured - {'model' if len(models) == 1 else label}": (meas - getattr(sim, field), color, 1.5)
+                         for label, (sim, color) in models.items()}
+            log_signal(rec, f"residuals/{sig}", every, residuals)
+    log_guards(rec, "signals/theta/guards", t, guard)
     theta = _measured(kin, "theta_rad")
-    omega = _measured(kin, "omega_rad_s")
-    current = _measured(kin, "current_a")
-    cl = sims["closed_loop"]
-    ext = np.array([_extent(current, cl.current_measured, floor=0.05),
-                    _extent(omega, cl.omega, floor=0.5),
-                    _extent(theta, cl.theta, floor=guard)])
-    # Each axis's extent maps to 1 so the trajectory fills the view whatever the units.
-    rec.log("trajectory", rr.Transform3D(scale=(1.0 / ext).tolist()), static=True)
-    strips = {"closed_loop": np.column_stack([cl.current_measured, cl.omega, cl.theta]),
-              "replay": np.column_stack([sims["replay"].current_measured, sims["replay"].omega,
-                                         sims["replay"].theta])}
+    sw = switch_indices(d)
+    log_points(rec, "signals/theta/switches_logged", t[sw], theta[sw], "switch (logged)", MEASURED, "diamond")
+    if len(models) > 1:
+        sw_cl = switch_indices(sims["closed_loop"].dir)
+        log_points(rec, "signals/theta/switches_closed_loop", t[sw_cl], sims["closed_loop"].theta[sw_cl],
+                   "switch (closed loop)", CLOSED, "cross")
+    gc = guard_crossings(theta, guard)
+    log_points(rec, "signals/theta/guard_crossings", t[gc], theta[gc], "guard crossing", GUARD, "circle")
+    log_mode_lane(rec, "mode/logged", t, d)
+    if len(models) > 1:
+        log_mode_lane(rec, "mode/closed_loop", t, sims["closed_loop"].dir)
+    _events(rec, event_rows(t, theta, d, sims, guard, period))
+    log_phase_portrait(rec, "trajectory", portrait_strips(kin, models), guard)
+    rec.log("stats", rr.TextDocument(stats_markdown(name, validation, derived, coincidence(*sims.values())),
+                                     media_type=rr.MediaType.MARKDOWN), static=True)
+
+
+def legend_entries(sims: dict[str, SimResult]) -> int:
+    """Lines of the angle plot's legend: the models, measured, guards, logged switches, guard
+    crossings, and the closed loop's switches when it departs from the replay."""
+    models = len(model_series(sims))
+    return models + 4 + (models > 1)
+
+
+def portrait_strips(kin: pd.DataFrame, models: dict[str, tuple[SimResult, tuple]]) -> dict:
+    """The phase portrait's curves: the models, then the measurement on top, its current the derive
+    stage's smoothed one (the raw current's ADC steps and noise would scribble over the curve)."""
+    strips = {label: (np.column_stack([sim.current_measured, sim.omega, sim.theta]), color, 1.0)
+              for label, (sim, color) in models.items()}
+    label, current = "measured (smoothed current)", _measured(kin, "current_smooth_a")
+    if current is None:
+        label, current = "measured", _measured(kin, "current_a")
     if current is not None:
-        m = np.column_stack([current, omega, theta])
-        strips["measured"] = m[np.isfinite(m).all(axis=1)]
-    for name, xyz in strips.items():
-        rec.log(f"trajectory/{name}", rr.LineStrips3D([xyz], colors=[SERIES[name]], radii=rr.Radius.ui_points(1.0),
-                                                     labels=[name.replace("_", " ")], show_labels=False), static=True)
-    rec.log("trajectory/guard_planes", rr.Boxes3D(
-        centers=[[0.0, 0.0, guard], [0.0, 0.0, -guard]],
-        half_sizes=[[ext[0], ext[1], ext[2] * 0.002]] * 2,
-        colors=[GUARD_PLANE] * 2, fill_mode="solid",
-        labels=[f"guard theta = +{guard:.3f} rad", f"guard theta = -{guard:.3f} rad"]), static=True)
-    units = (("current I", "A"), ("omega w", "rad/s"), ("theta", "rad"))
-    rec.log("trajectory/axes", rr.Arrows3D(
-        vectors=np.diag(ext).tolist(), origins=[[0.0, 0.0, 0.0]] * 3,
-        colors=np.array([_rgba(255, 80, 80), _rgba(80, 220, 80), _rgba(90, 140, 255)], dtype=np.uint32),
-        radii=rr.Radius.ui_points(1.5),
-        labels=[f"{n} [{u}] (to {e:.3g} {u})" for (n, u), e in zip(units, ext)]), static=True)
+        measured = np.column_stack([current, _measured(kin, "omega_rad_s"), _measured(kin, "theta_rad")])
+        strips[label] = (measured, RGB["measured"], 1.5)
+    return strips
 
 
 def _fmt(v) -> str:
@@ -224,10 +301,17 @@ def _fmt(v) -> str:
     return str(v)
 
 
-def stats_markdown(name: str, validation: dict, derived: dict[str, dict[str, np.ndarray]] | None = None) -> str:
-    """The statistics panel: metrics of both ways, oscillation/overshoot, energy, per-phase table."""
+def stats_markdown(name: str, validation: dict, derived: dict[str, dict[str, np.ndarray]] | None = None,
+                   coincide: float | None = None) -> str:
+    """The statistics panel: metrics of both ways, oscillation/overshoot, energy, per-phase table.
+    ``coincide``: ``coincidence`` of the two simulations, said first when they are drawn as one."""
     ways = ("closed_loop", "replay")
-    lines = [f"# {name}", "", "## Errors (measured - simulated)", "",
+    lines = [f"# {name}", ""]
+    if coincide is not None and coincide <= COINCIDENCE_TOL:
+        apart = "are identical" if coincide == 0.0 else f"differ by at most {coincide:.1g} of a signal's peak"
+        lines += [f"Closed loop = replay: the closed loop switches at the logged samples; the two simulations "
+                  f"{apart} and are drawn as one line.", ""]
+    lines += ["## Errors (measured - simulated)", "",
              "| signal | way | MSE | RMSE | fit % |", "|---|---|---|---|---|"]
     for way in ways:
         for sig, e in validation[way]["signals"].items():
@@ -268,146 +352,22 @@ def _md_table(columns: dict[str, np.ndarray]) -> list[str]:
     return [head, rule, *body]
 
 
-def log_run(rec, name: str, kin: pd.DataFrame, sims: dict[str, SimResult], validation: dict,
-            guard: float, derived: dict[str, dict[str, np.ndarray]] | None = None) -> None:
-    """Log one run into an open recording stream (no file handling here)."""
-    import rerun as rr
-
-    t = column(kin, "t_s", dtype=float)
-    every = rr.TimeColumn(TIMELINE, duration=t)
-    d = logged_dir(kin)
-    for sig, (name_in_kin, field, _unit) in SIGNALS.items():
-        meas = _measured(kin, name_in_kin)
-        sim = {way: getattr(sims[way], field) for way in ("closed_loop", "replay")}
-        lines = {} if meas is None else {"measured": (meas, MEASURED, 2.0)}
-        lines.update({way.replace("_", " "): (v, SERIES[way], 1.5) for way, v in sim.items()})
-        log_signal(rec, f"signals/{sig}", every, lines)
-        if meas is not None:
-            residuals = {f"measured - {way.replace('_', ' ')}": (meas - v, SERIES[way], 1.5) for way, v in sim.items()}
-            log_signal(rec, f"residuals/{sig}", every, residuals)
-    ends = t[[0, -1]]          # a guard is a straight line: its two ends are enough
-    _scalars(rec, "signals/theta/guard_upper", ends, np.full(2, guard), "+guard", GUARD, 1.0)
-    _scalars(rec, "signals/theta/guard_lower", ends, np.full(2, -guard), "-guard", GUARD, 1.0)
-    theta = _measured(kin, "theta_rad")
-    sw = switch_indices(d)
-    _points(rec, "signals/theta/switches_logged", t[sw], theta[sw], "switch (logged)", MEASURED, "diamond")
-    sw_cl = switch_indices(sims["closed_loop"].dir)
-    _points(rec, "signals/theta/switches_closed_loop", t[sw_cl], sims["closed_loop"].theta[sw_cl],
-            "switch (closed loop)", CLOSED, "cross")
-    gc = guard_crossings(theta, guard)
-    _points(rec, "signals/theta/guard_crossings", t[gc], theta[gc], "guard crossing", GUARD, "circle")
-    _mode_lane(rec, "mode/logged", t, d)
-    _mode_lane(rec, "mode/closed_loop", t, sims["closed_loop"].dir)
-    _events(rec, t, theta, d, sims["closed_loop"], guard)
-    _trajectory(rec, kin, sims, guard)
-    rec.log("stats", rr.TextDocument(stats_markdown(name, validation, derived),
-                                     media_type=rr.MediaType.MARKDOWN), static=True)
-
-
-@functools.lru_cache(maxsize=1)
-def _blueprint_chunks():
-    """The chunks of ``blueprint()``, built once per process and kept in memory.
-
-    ``RecordingStream.save(path, default_blueprint=...)`` rebuilds the
-    blueprint on every call: 36 archetypes through rerun's Python converters,
-    ~10 ms per ``.rrd``.  The blueprint is the same for every run, so it is
-    logged once into a file of its own and its chunks are read back; each
-    ``.rrd`` then gets a copy of them (~4 ms).  Not in the forkserver: saving
-    starts rerun's threads, and a process must not fork after that.
-    """
-    import rerun as rr
-    from rerun.chunk import RrdReader
-
-    with tempfile.TemporaryDirectory(prefix="pdr-blueprint-") as folder:
-        path = Path(folder) / "blueprint.rrd"
-        rec = rr.RecordingStream("pdr", recording_id="blueprint")
-        rec.save(path, default_blueprint=blueprint())
-        rec.flush()
-        rec.disconnect()
-        reader = RrdReader(path)
-        return reader.store(store=reader.blueprints()[0]).stream().collect()
-
-
-def _save_with_blueprint(rec, path: Path) -> None:
-    """``rec.save(path, default_blueprint=blueprint())`` from the cached chunks.
-
-    What ``rerun.sinks.save`` does, with the blueprint stream filled by
-    ``send_chunks`` instead of by logging the blueprint again (rerun-sdk is
-    pinned: ``rerun_bindings.new_blueprint`` and ``save`` are its internals).
-    The tests read the blueprint back from the file and open it in the viewer.
-    """
-    import rerun as rr
-    import rerun_bindings as bindings
-    from rerun.recording_stream import RecordingStream
-
-    stream = RecordingStream._from_native(bindings.new_blueprint(
-        application_id="pdr", make_default=False, make_thread_default=False, default_enabled=True))
-    rr.send_chunks(_blueprint_chunks(), recording=stream)
-    bindings.save(path=str(path), default_blueprint=stream.memory_recording().storage,
-                  recording=rec.to_native(), write_footer=True)
-
-
-def rerun_executable() -> str:
-    """The native ``rerun`` binary shipped in the rerun-sdk wheel.
-
-    Called directly rather than through ``.venv/bin/rerun`` (a Python wrapper
-    that starts an interpreter first): 30 ms instead of 120 ms per verify.
-    """
-    import importlib.util
-
-    spec = importlib.util.find_spec("rerun_cli")
-    if spec is not None and spec.origin:
-        native = Path(spec.origin).with_name("rerun")
-        if native.exists():
-            return str(native)
-    found = shutil.which("rerun")
-    if found is None:
-        raise PdrError("the rerun CLI (package rerun-sdk, module rerun_cli) is not installed")
-    return found
-
-
-def _verify(paths: list[Path]) -> str | None:
-    """Run ``rerun rrd verify`` on the files; None when all pass, else the tool's last line."""
-    proc = subprocess.run([rerun_executable(), "rrd", "verify", *map(str, paths)], capture_output=True, text=True)
-    if proc.returncode == 0:
-        return None
-    msg = (proc.stderr or proc.stdout).strip().splitlines()
-    return f"rerun rrd verify failed: {msg[-1] if msg else 'exit ' + str(proc.returncode)}"
-
-
-def verify_rrd(path: Path) -> None:
-    """``rerun rrd verify``: the file loads and every chunk is interpretable."""
-    error = _verify([path])
-    if error is not None:
-        raise PdrError(error, path=path)
-
-
-def verify_rrds(paths: list[Path]) -> dict[Path, str]:
-    """``verify_rrd`` on many files with one start of the tool (~40 ms each saved); returns the failures.
-
-    When the batch fails, each file is verified on its own so only the culprits are named.
-    """
-    if not paths or _verify(paths) is None:
-        return {}
-    failed = {}
-    for path in paths:
-        error = _verify([path])
-        if error is not None:
-            failed[path] = error
-    return failed
 
 
 def write_rrd(target: Path, name: str, kin: pd.DataFrame, sims: dict[str, SimResult], validation: dict,
-              guard: float, derived: dict[str, dict[str, np.ndarray]] | None = None, verify: bool = True) -> None:
+              guard: float, derived: dict[str, dict[str, np.ndarray]] | None = None, verify: bool = True,
+              period: float = 0.05) -> None:
     """Save to a temporary file beside ``target``, close the stream, verify, rename."""
     import rerun as rr
 
     from pipeline.io.atomic import atomic_path
 
+    ranges = axis_ranges(run_blueprint, theta_band(kin, sims, guard, legend_entries(sims)),
+                         residual_ranges(kin, sims.values()))
     with atomic_path(Path(target)) as tmp:
         rec = rr.RecordingStream("pdr", recording_id=name)
-        _save_with_blueprint(rec, tmp)
-        log_run(rec, name, kin, sims, validation, guard, derived)
+        save_with_blueprint(rec, tmp, blueprint_chunks(run_blueprint), y_ranges=ranges)
+        log_run(rec, name, kin, sims, validation, guard, derived, period)
         rec.flush()
         rec.disconnect()
         if verify:

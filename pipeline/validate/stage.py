@@ -149,7 +149,8 @@ def validate_run(paths: RunPaths, model_override: ModelOverride = None, *, rrd: 
     t4 = time.perf_counter()
     if rrd:
         panels = derived_tables(paths) if derived is None else panel_tables(derived)
-        write_rrd(paths.rrd, paths.name, kin, sims, validation, spec.guard_rad, panels, verify=verify)
+        write_rrd(paths.rrd, paths.name, kin, sims, validation, spec.guard_rad, panels, verify=verify,
+                  period=spec.period_s)
     t5 = time.perf_counter()
     if png:
         title = (f"{paths.name}   MSE replay: theta {_short(validation, 'replay', 'theta')}, "

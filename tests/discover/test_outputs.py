@@ -91,11 +91,15 @@ def test_rrd_has_measurement_models_and_residuals(delay_run):
         assert rows[f"/signals/{sig}"] == n and rows[f"/residuals/{sig}"] == n
         names = [ch.to_record_batch().column("SeriesLines:names").to_pylist()[0] for ch in chunks
                  if ch.is_static and ch.entity_path in (f"/signals/{sig}", f"/residuals/{sig}")]
-        assert sorted(names) == [["before", "after"], ["measured", "base model", "augmented model"]]
+        assert sorted(names) == [["base model", "augmented model", "measured"], ["before", "after"]]
         width = {len(v) for ch in chunks if ch.entity_path == f"/signals/{sig}" and not ch.is_static
                  for v in ch.to_record_batch().column("Scalars:scalars").to_pylist()}
         assert width == {3}                                   # measured, base and augmented at every sample
     assert len(reader.blueprints()) == 1
+    static = {ch.entity_path for ch in chunks if ch.is_static}
+    assert {"/signals/theta/guards", "/trajectory_before/scaled", "/trajectory_after/scaled/augmented_model",
+            "/report"} <= static
+    assert rows["/mode/logged"] > 10                          # the command lane, one row per change
 
 
 @pytest.mark.slow

@@ -1,0 +1,177 @@
+"""The layouts saved inside the ``.rrd`` files: what the viewer opens on.
+
+A run (``run_blueprint``): each signal in a row with its residual beside it, at
+the same height, every time axis linked; the mode lane under them; the 3-D
+phase portrait over the statistics and events on the right.  One legend, on
+the angle plot, in a band above the data kept free by the plot's range.  The
+side panels are collapsed and the time panel is paused: the recording is
+complete when it is opened, so there is nothing to play, and the time cursor
+stays where the viewer puts a finished recording's (see the viewer test).
+
+Discovery (``discovery_blueprint``): the same rows for the measurement, the
+base and the augmented model, the residual before and after, and the phase
+portrait before and after, with the report beside them.
+
+Each layout is built once per process (``rerun_io.blueprint_chunks``); what
+differs between runs, the y ranges of the angle plot and of the residuals, is
+added to each file's copy as view properties (``axis_ranges``), so runs share
+the layout.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+
+from pipeline.validate.rerun_io import stable_ids
+
+SIGNAL_UNITS = (("theta", "rad"), ("omega", "rad/s"), ("current", "A"))
+RUN_VIEW_NAMES = ("theta [rad]", "omega [rad/s]", "current [A]", "residual theta [rad]", "residual omega [rad/s]",
+                  "residual current [A]", "mode", "trajectory (I, w, theta)", "statistics", "events")
+DISCOVERY_VIEW_NAMES = ("theta [rad]", "omega [rad/s]", "current [A]", "residual theta [rad]",
+                        "residual omega [rad/s]", "residual current [A]", "mode", "before: base model (I, w, theta)",
+                        "after: augmented model (I, w, theta)", "report")
+
+
+def legend_band(lo: float, hi: float, entries: int) -> tuple[float, float]:
+    """A y range for a plot whose data span [lo, hi] that leaves room above them for a legend of
+    ``entries`` lines (~8 % of the plot's height each: ~20 px of a ~270 px plot, the angle plot in
+    a 1600 x 1000 window)."""
+    share = min(0.08 * entries + 0.05, 0.65)
+    span = hi - lo
+    return lo - 0.03 * span, hi + span * share / (1.0 - share)
+
+
+def tick_range(peak: float) -> tuple[float, float] | None:
+    """A symmetric y range for a residual of largest size ``peak`` = m x 10^k (1 <= m < 10) whose
+    gridlines get labels.  The viewer labels multiples of a power of ten, and only when they are
+    ~20 px apart: a ~150 px plot spanning more than ~7 steps, or whose data stop just short of a
+    step, shows only "0".  So: +/- 1.1 x peak when m <= 3 (at most 6.6 steps of 10^k, +/-10^k
+    inside), else +/- 1.15 x 10^(k+1) (two steps, the data filling 26-87 % of the height)."""
+    if not np.isfinite(peak) or peak <= 0.0:
+        return None
+    step = 10.0 ** np.floor(np.log10(peak))
+    half = 1.1 * peak if peak <= 3.0 * step else 1.15 * 10.0 * step
+    return (round(float(-half), 12), round(float(half), 12))
+
+
+def _time_series(name: str, origin: str, legend: bool = False, y_range: tuple[float, float] | None = None):
+    import rerun.blueprint as rrb
+
+    return rrb.TimeSeriesView(
+        origin=origin, name=name, axis_x=rrb.TimeAxis(link="LinkToGlobal"),
+        axis_y=rrb.ScalarAxis(range=y_range) if y_range is not None else None,
+        plot_legend=rrb.PlotLegend(corner="LeftTop", visible=legend))
+
+
+def _signal_rows(theta_range: tuple[float, float] | None, residual_ranges: tuple | None):
+    """Three rows, each a signal with its residual beside it (same height), and the mode lane."""
+    import rerun.blueprint as rrb
+
+    residual_ranges = residual_ranges or (None,) * len(SIGNAL_UNITS)
+    rows = [rrb.Horizontal(_time_series(f"{sig} [{unit}]", f"/signals/{sig}", legend=sig == "theta",
+                                        y_range=theta_range if sig == "theta" else None),
+                           _time_series(f"residual {sig} [{unit}]", f"/residuals/{sig}", y_range=res_range),
+                           column_shares=[3, 2])
+            for (sig, unit), res_range in zip(SIGNAL_UNITS, residual_ranges)]
+    lane = rrb.StateTimelineView(origin="/mode", name="mode", time_view=rrb.TimeAxis(link="LinkToGlobal"))
+    return rrb.Vertical(*rows, lane, row_shares=[5, 3, 3, 1.8])
+
+
+def _portrait(name: str, origin: str):
+    import rerun.blueprint as rrb
+
+    from pipeline.validate.rerun_phase import CAMERA
+
+    return rrb.Spatial3DView(origin=origin, name=name, background=rrb.Background(color=(20, 20, 24)),
+                             eye_controls=rrb.EyeControls3D(kind="Orbital", **CAMERA),
+                             line_grid=rrb.LineGrid3D(visible=False))
+
+
+def _panels():
+    import rerun.blueprint as rrb
+
+    return (rrb.TimePanel(state="collapsed", play_state="following"), rrb.SelectionPanel(state="collapsed"),
+            rrb.BlueprintPanel(state="collapsed"))
+
+
+def _events_view():
+    import rerun.blueprint as rrb
+
+    return rrb.TextLogView(origin="/events", name="events", columns=rrb.TextLogColumns(
+        timeline_columns=[rrb.encodings.TimelineColumn(timeline="time", visible=False)],
+        text_log_columns=[rrb.encodings.TextLogColumn("LogLevel"), rrb.encodings.TextLogColumn("Body"),
+                          rrb.encodings.TextLogColumn("EntityPath", visible=False)]))
+
+
+def run_blueprint(theta_range: tuple[float, float] | None = None, residual_ranges: tuple | None = None):
+    """The layout of ``<run>.rrd``; ``theta_range`` leaves the legend its band (``legend_band``),
+    ``residual_ranges`` (theta, omega, current; ``tick_range`` or None) label the residuals' axes."""
+    import rerun.blueprint as rrb
+
+    right = rrb.Vertical(_portrait("trajectory (I, w, theta)", "/trajectory"),
+                         rrb.Tabs(rrb.TextDocumentView(origin="/stats", name="statistics"), _events_view()),
+                         row_shares=[3, 2])
+    bp = rrb.Blueprint(rrb.Horizontal(_signal_rows(theta_range, residual_ranges), right, column_shares=[3, 2]),
+                       *_panels(), auto_views=False)
+    return stable_ids(bp, "run")
+
+
+def discovery_blueprint(theta_range: tuple[float, float] | None = None, residual_ranges: tuple | None = None):
+    """The layout of ``discovery.rrd``: signals and residuals left, portraits before/after and the report right."""
+    import rerun.blueprint as rrb
+
+    right = rrb.Vertical(
+        rrb.Horizontal(_portrait("before: base model (I, w, theta)", "/trajectory_before"),
+                       _portrait("after: augmented model (I, w, theta)", "/trajectory_after")),
+        rrb.TextDocumentView(origin="/report", name="report"), row_shares=[2, 3])
+    bp = rrb.Blueprint(rrb.Horizontal(_signal_rows(theta_range, residual_ranges), right, column_shares=[5, 4]),
+                       *_panels(), auto_views=False)
+    return stable_ids(bp, "discovery")
+
+
+def side_by_side_blueprint(names: tuple[str, ...], theta_range: tuple[float, float] | None = None):
+    """Several runs in columns (``pdr view A B``): each run's signals, mode lane and phase portrait
+    under ``/runs/<name>``, every time axis linked; the legend on the first run's angle plot."""
+    import rerun.blueprint as rrb
+
+    columns = []
+    for i, name in enumerate(names):
+        root = f"/runs/{name}"
+        plots = [_time_series(f"{name}: {sig} [{unit}]", f"{root}/signals/{sig}", legend=i == 0 and sig == "theta",
+                              y_range=theta_range if sig == "theta" else None)
+                 for sig, unit in SIGNAL_UNITS]
+        lane = rrb.StateTimelineView(origin=f"{root}/mode", name=f"{name}: mode",
+                                     time_view=rrb.TimeAxis(link="LinkToGlobal"))
+        columns.append(rrb.Vertical(*plots, lane, _portrait(f"{name}: trajectory (I, w, theta)", f"{root}/trajectory"),
+                                    row_shares=[4, 2.5, 2.5, 1.6, 3]))
+    bp = rrb.Blueprint(rrb.Horizontal(*columns), *_panels(), auto_views=False)
+    return stable_ids(bp, "side-by-side/" + "/".join(names))
+
+
+@functools.lru_cache(maxsize=16)
+def view_ids(build, *args) -> dict[str, str]:
+    """Display name -> view id of a layout; the ids derive from positions (``stable_ids``), so
+    they are the ids in the layout's cached chunks."""
+    from rerun.blueprint.api import Container
+
+    out: dict[str, str] = {}
+
+    def walk(container) -> None:
+        for child in container.contents:
+            if isinstance(child, Container):
+                walk(child)
+            else:
+                out[child.name] = str(child.id)
+
+    walk(build(*args).root_container)
+    return out
+
+
+def axis_ranges(build, theta_range: tuple[float, float] | None, residual_ranges: tuple) -> dict[str, tuple]:
+    """View id -> y range of a layout with signal rows: the angle plot and the residuals
+    (theta, omega, current), those that have one."""
+    ids = view_ids(build)
+    names = ["theta [rad]"] + [f"residual {sig} [{unit}]" for sig, unit in SIGNAL_UNITS]
+    return {ids[n]: r for n, r in zip(names, (theta_range, *residual_ranges)) if r is not None}

@@ -1,0 +1,107 @@
+"""`pdr view`: no display, side by side, and the web viewer served over HTTP (localhost only)."""
+
+import re
+import signal
+import socket
+import subprocess
+import sys
+import urllib.parse
+import urllib.request
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rerun.chunk import RrdReader
+
+from pipeline.config import default_config
+from pipeline.model.effects import make_effect
+from pipeline.validate.stage import validate_run
+from pipeline.validate.view import NO_DISPLAY, display_available, side_by_side_rrd
+from tests.validate.net import free_port_pair
+from tests.validate.synthetic import synthetic_kinematics, synthetic_run
+
+PDR = str(Path(sys.executable).with_name("pdr"))      # the console command, as a user runs it
+
+
+@pytest.fixture(scope="module")
+def processed(tmp_path_factory):
+    """Two validated runs: a clean one and one whose rig has a loop delay the model lacks."""
+    root = tmp_path_factory.mktemp("view") / "processed"
+    delayed = default_config().plant_spec(extra_effects=(make_effect("loop_delay", {"Td": 0.05}),))
+    for name, kin in (("clean", None), ("delayed", synthetic_kinematics(delayed, current_noise_a=0.02))):
+        validate_run(synthetic_run(root, name, kin=kin), png=False)
+    return root
+
+
+def test_display_detection():
+    assert not display_available({}, "linux")
+    assert not display_available({"DISPLAY": ""}, "linux")
+    assert display_available({"DISPLAY": ":0"}, "linux")
+    assert display_available({"WAYLAND_DISPLAY": "wayland-0"}, "linux")
+    assert display_available({}, "darwin") and display_available({}, "win32")
+
+
+def test_without_a_display_one_line_says_to_use_web(processed, monkeypatch):
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    result = subprocess.run([PDR, "view", "clean", "--processed", str(processed)],
+                            capture_output=True, text=True, timeout=60)
+    assert result.returncode != 0
+    assert result.stderr.strip().splitlines() == [f"pdr: error: {NO_DISPLAY}"]
+    assert "pdr view --web" in NO_DISPLAY and "Traceback" not in result.stderr + result.stdout
+
+
+def test_side_by_side_recording_holds_every_run_under_its_name(processed, tmp_path):
+    runs = {name: processed / name / f"{name}.rrd" for name in ("clean", "delayed")}
+    reader = RrdReader(side_by_side_rrd(runs, tmp_path / "both.rrd"))
+    chunks = reader.stream().to_chunks()
+    paths = {ch.entity_path for ch in chunks}
+    for name, path in runs.items():
+        own = {ch.entity_path for ch in RrdReader(path).stream().to_chunks()} - {"/__properties"}
+        assert {f"/runs/{name}{p}" for p in own} <= paths
+        theta = [v for ch in chunks if ch.entity_path == f"/runs/{name}/signals/theta" and not ch.is_static
+                 for v in ch.to_record_batch().column("Scalars:scalars").to_pylist()]
+        original = [v for ch in RrdReader(path).stream().to_chunks()
+                    if ch.entity_path == "/signals/theta" and not ch.is_static
+                    for v in ch.to_record_batch().column("Scalars:scalars").to_pylist()]
+        np.testing.assert_array_equal(theta, original)
+    views = set()
+    for ch in reader.stream(store=reader.blueprints()[0]).to_chunks():
+        rb = ch.to_record_batch()
+        if "ViewBlueprint:display_name" in rb.schema.names:
+            views.update(v[0] for v in rb.column("ViewBlueprint:display_name").to_pylist() if v)
+    assert {"clean: theta [rad]", "delayed: theta [rad]", "clean: mode",
+            "delayed: trajectory (I, w, theta)"} <= views
+
+
+@pytest.mark.slow
+def test_web_serves_the_viewer_page_and_the_side_by_side_recording(processed, tmp_path):
+    port = free_port_pair()
+    proc = subprocess.Popen([PDR, "view", "--web", "--port", str(port),
+                             "--processed", str(processed), "clean", "delayed"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        line = proc.stdout.readline()
+        match = re.search(r"(http://127\.0\.0\.1:(\d+)/\?url=\S+)", line)
+        assert match and int(match.group(2)) == port, line
+        page = urllib.request.urlopen(match.group(1), timeout=20)
+        html = page.read().decode()
+        assert page.status == 200 and "<html>" in html and "Rerun" in html
+        recording_url = urllib.parse.parse_qs(urllib.parse.urlparse(match.group(1)).query)["url"][0]
+        assert recording_url.startswith(f"http://127.0.0.1:{port + 1}/")
+        response = urllib.request.urlopen(recording_url, timeout=20)
+        assert response.headers["Access-Control-Allow-Origin"] == "*"       # the viewer page fetches it cross-origin
+        fetched = tmp_path / "fetched.rrd"
+        fetched.write_bytes(response.read())
+        reader = RrdReader(fetched)
+        assert [r.recording_id for r in reader.recordings()] == ["side-by-side:clean+delayed"]
+        assert len(reader.blueprints()) == 1
+        assert {"/runs/clean/signals/theta", "/runs/delayed/trajectory/scaled"} <= {
+            ch.entity_path for ch in reader.stream().to_chunks()}
+    finally:
+        proc.send_signal(signal.SIGINT)
+        proc.wait(timeout=20)
+    assert proc.returncode == 0, proc.stderr.read()
+    for p in (port, port + 1):                  # both servers stopped with the command
+        with socket.socket() as s:
+            assert s.connect_ex(("127.0.0.1", p)) != 0
