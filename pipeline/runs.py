@@ -3,16 +3,64 @@
 A run is one logging segment of one raw recording.  A file with a single
 segment gives the run ``<stem>``; a file in which the board reset gives
 ``<stem>-seg1``, ``<stem>-seg2``, ... (see the ingest report).
+
+Run names are unique by construction: a recording whose stem could be taken
+for a segment (``foo-seg1.csv``) or for one of the pipeline's own entries in
+``processed/`` (``discovery``, ``summary.csv``, hidden names such as the lock)
+is refused by ``check_recording_name``, as is one whose run folder's files
+could not be named on a common file system.  Two recordings whose stems differ
+only in case are told apart by the raw-folder scan (``pipeline.run.recordings``).
 """
 
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from pipeline.config import RigConfig, config_from_dict
+
+
+LOCK_NAME = ".pdr.lock"                 # processed/.pdr.lock: the lock every writing command holds
+DISCOVERY_DIR = "discovery"             # processed/discovery/<run>/: pdr discover's default output
+SUMMARY_CSV = "summary.csv"             # processed/summary.csv: one row per run
+RESERVED_NAMES = (DISCOVERY_DIR, SUMMARY_CSV)
+SEGMENT_SUFFIX = re.compile(r"-seg[0-9]+$")
+# A run's longest file name is ".<run>.mcap.<pid>.<n>.tmp" (an atomic write's temporary): with up to
+# 40 bytes for the rest and "-segNNNN", a stem of 200 bytes stays within the usual 255-byte limit.
+MAX_STEM_BYTES = 200
+
+
+def segment_run_name(stem: str, k: int) -> str:
+    """The run of a recording's ``k``-th kept segment (1-based) when the board reset."""
+    return f"{stem}-seg{k}"
+
+
+def check_recording_name(stem: str, path: str | Path) -> None:
+    """Refuse, naming the file, a recording stem that is not a usable, unique run name."""
+    from pipeline.errors import PdrError
+
+    try:
+        size = len(stem.encode("utf-8"))
+    except UnicodeEncodeError:
+        raise PdrError("the file name is not valid UTF-8; rename it (run names are UTF-8 folder names)",
+                       path=_printable(path)) from None
+    if size > MAX_STEM_BYTES:
+        raise PdrError(f"the file name is {size} bytes long, expected at most {MAX_STEM_BYTES} before '.csv' "
+                       f"(its outputs' names must fit the file system); rename it", path=path)
+    if not stem or stem.startswith(".") or stem.casefold() in RESERVED_NAMES:
+        raise PdrError(f"'{stem}' is reserved for pdr's own entries in processed/ ({', '.join(RESERVED_NAMES)}, "
+                       f"hidden names); rename the recording", path=path)
+    if SEGMENT_SUFFIX.search(stem):
+        raise PdrError("names ending in -seg<N> are reserved for the segments of a recording whose board "
+                       "reset; rename the recording", path=path)
+
+
+def _printable(path: str | Path) -> str:
+    """A path whose name is not valid UTF-8, with the bad bytes escaped, for a one-line message."""
+    return str(path).encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
 
 
 @dataclass(frozen=True)
@@ -83,6 +131,8 @@ def resolve_runs(recording: str | Path, processed: Path) -> list[RunPaths]:
     from pipeline.errors import PdrError
 
     item = Path(recording)
+    if item.name in RESERVED_NAMES or item.name.startswith("."):
+        raise PdrError(f"'{item.name}' is one of pdr's own entries, not a run", path=str(recording))
     if item.is_dir():
         return [RunPaths(item)]
     if item.suffix.lower() == ".csv":
