@@ -46,7 +46,7 @@ def check_recording_name(stem: str, path: str | Path) -> None:
         size = len(stem.encode("utf-8"))
     except UnicodeEncodeError:
         raise PdrError("the file name is not valid UTF-8; rename it (run names are UTF-8 folder names)",
-                       path=_printable(path)) from None
+                       path=printable(path)) from None
     if size > MAX_STEM_BYTES:
         raise PdrError(f"the file name is {size} bytes long, expected at most {MAX_STEM_BYTES} before '.csv' "
                        f"(its outputs' names must fit the file system); rename it", path=path)
@@ -58,8 +58,8 @@ def check_recording_name(stem: str, path: str | Path) -> None:
                        "reset; rename the recording", path=path)
 
 
-def _printable(path: str | Path) -> str:
-    """A path whose name is not valid UTF-8, with the bad bytes escaped, for a one-line message."""
+def printable(path: str | Path) -> str:
+    """A path (or a message naming one) whose name is not valid UTF-8, with the bad bytes escaped (``\\xff``)."""
     return str(path).encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
 
 

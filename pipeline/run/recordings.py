@@ -37,6 +37,8 @@ def scan_raw(raw: Path) -> RawFolder:
     except OSError as err:
         raise PdrError(f"cannot list the raw folder: {err.strerror}", path=raw) from None
     seen: dict[str, str] = {}       # casefolded stem -> entry name
+    # of names that differ only in case, the one ending in a lowercase ".csv" is taken first
+    names.sort(key=lambda name: (not name.endswith(RECORDING_SUFFIX), name))
     for name in names:
         if name.startswith("."):
             continue
@@ -59,4 +61,6 @@ def scan_raw(raw: Path) -> RawFolder:
             continue
         seen[stem.casefold()] = name
         out.recordings.append(path)
+    out.recordings.sort()
+    out.refused = dict(sorted(out.refused.items()))
     return out

@@ -5,6 +5,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from pipeline.runs import printable
+
 
 @dataclass
 class RunReport:
@@ -75,6 +77,7 @@ def print_report(report: RunReport, processed: Path) -> None:
         table = summary_table(processed)
         ran = {name for r in report.ran for name in r["runs"]}
         render_summary(table[table["run"].isin(ran)] if not table.empty else table, console)
-    for r in report.failed:
+    for r in report.failed:     # one line each, however long: a script may grep them
         console.print("[red]FAILED[/] ", end="")
-        console.print(f"{r['recording']}: {r['error']}", markup=False, highlight=False)
+        console.print(f"{printable(r['recording'])}: {printable(r['error'])}", markup=False, highlight=False,
+                      soft_wrap=True)
