@@ -11,11 +11,14 @@ import sys
 from pathlib import Path
 
 from pipeline.rig.recording import RigSetup, make_recording
+from tests.ingest.test_realdata import REAL as REALDATA  # noqa: F401  (one place finds shared/realdata)
 
 PDR = str(Path(sys.executable).with_name("pdr"))
 CODE = "pinned"               # stamps must not see the source tree being edited while the tests run
 # outputs compared byte for byte; the .rrd (Rerun) and overview.png are checked for presence only
 COMPARED = (".parquet", ".json", ".mcap")
+
+
 
 
 @functools.lru_cache(maxsize=None)
