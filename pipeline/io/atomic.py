@@ -81,6 +81,14 @@ def _create_temp(target: Path) -> tuple[int, Path]:
     raise FileExistsError(f"no free temporary name beside {target}")
 
 
+def remove_stale_temporaries(root: Path) -> None:
+    """Temporary files a killed process left behind in ``root`` (never the outputs themselves); only for a
+    caller that holds ``processed/``'s lock or owns ``root``, so no live writer's temporary is removed."""
+    if root.is_dir():
+        for tmp in root.glob(".*.tmp"):
+            tmp.unlink(missing_ok=True)
+
+
 def _fsync_path(path: Path) -> None:
     if _deferred_depth:
         return

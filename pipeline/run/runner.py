@@ -26,7 +26,7 @@ import time
 from pathlib import Path
 
 from pipeline.errors import PdrError, describe_failure
-from pipeline.io.atomic import deferred_sync
+from pipeline.io.atomic import deferred_sync, remove_stale_temporaries
 from pipeline.run.lock import processed_lock
 from pipeline.run.recordings import scan_raw
 from pipeline.run.report import RunReport
@@ -204,6 +204,7 @@ def run_pipeline(raw: Path, processed: Path, *, jobs: int = 2, force: bool = Fal
         raise PdrError("raw folder not found (expected a folder of <name>.csv recordings)", path=raw)
     report = RunReport(started=time.perf_counter())
     with processed_lock(processed):
+        remove_stale_temporaries(processed)         # a killed run's summary.csv temporary
         folder = scan_raw(raw)
         report.ignored = folder.ignored
         failed = [_refused(name, reason) for name, reason in folder.refused.items()]
