@@ -100,7 +100,7 @@ class RunPaths:
     def rrd(self) -> Path: return self.root / f"{self.name}.rrd"
     @property
     def overview_png(self) -> Path: return self.root / "overview.png"
-    # run.py's incremental cache
+    # pdr run's incremental cache (run/stamp.py)
     @property
     def stamp(self) -> Path: return self.root / "stamp.json"
 
