@@ -8,6 +8,7 @@ import subprocess
 
 import pytest
 
+from pipeline.run import run_pipeline
 from tests.hostile.folders import PDR, good_csv, no_traceback, snapshot
 
 BAD_ENTRIES = {
@@ -70,8 +71,6 @@ def test_every_bad_entry_is_one_line_and_the_good_recordings_are_processed_as_al
     assert snapshot(raw) == before
 
     # a second run: every good recording unchanged and skipped, every bad entry refused again
-    again = subprocess.run([PDR, "run", "--raw", str(raw), "--processed", str(processed), "-j", "1"],
-                           capture_output=True, timeout=180)
-    text = (again.stdout + again.stderr).decode(errors="replace")
-    assert again.returncode == 1 and "2 unchanged and skipped" in text and text.count("FAILED ") == len(failed)
+    again = run_pipeline(raw, processed, jobs=1)
+    assert again.skipped == ["good0.csv", "good1.csv"] and len(again.failed) == len(failed)
     assert snapshot(raw) == before
