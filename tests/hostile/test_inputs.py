@@ -227,3 +227,31 @@ def test_the_real_captures_are_processed_or_refused_in_one_line(workspace):
         no_traceback(r["error"])
     assert report.ignored == ["DATA_EMPS.mat"]
     assert snapshot(raw) == before
+
+
+def _interface_capture() -> bytes:
+    """good0 as a real serial capture per INTERFACE.md: BOM, CRLF, comments, blank lines, IDE prefixes, a
+    partial first line, garbled lines, and a repeated header where the board reset and logging restarted."""
+    header, body = rows(good_csv(0))
+    lines = [b"\xef\xbb\xbf# pdr hostile capture\r\n", b"9,511,1\r\n", header.rstrip() + b"\r\n", b"\r\n"]
+    for k, line in enumerate(body[:60]):
+        line = line.rstrip()
+        lines.append((b"12:34:56.789 -> " + line if k % 3 == 0 else line) + b"\r\n")
+        if k == 20:
+            lines.append(b"4#1,,x\xff\r\n")
+    lines.append(header.rstrip() + b"\r\n")                        # the board reset: time and count from 0
+    lines += [ln.rstrip() + b"\r\n" for ln in body[:60]]
+    return b"".join(lines)
+
+
+def test_every_capture_defect_of_the_interface_at_once(workspace):
+    raw = workspace.fresh_raw()
+    (raw / "serial.csv").write_bytes(_interface_capture())
+    before = snapshot(raw)
+    processed = workspace.processed()
+    report = run_pipeline(raw, processed, jobs=1, code=CODE)
+    assert [(r["status"], r["runs"]) for r in report.ran] == [("ok", ["serial-seg1", "serial-seg2"])], report.ran
+    ingest = json.loads((processed / "serial-seg1" / "ingest_report.json").read_text())
+    assert [q["line"] for q in ingest["quarantined"]] == [2, 26]    # the partial first line, the garbled one
+    assert ingest["board_resets"] == 1 and ingest["rows"]["kept"] == 120
+    assert snapshot(raw) == before
