@@ -100,16 +100,20 @@ def test_ingest_of_several_recordings_does_every_good_one_and_exits_nonzero(tmp_
         fh.write(good_csv(0))
     long = tmp_path / ("n" * 240 + ".csv")
     long.write_bytes(good_csv(0))
+    os.mkfifo(tmp_path / "fifo.csv")
+    (tmp_path / "zero.csv").symlink_to("/dev/zero")
     processed = tmp_path / "processed"
     out = subprocess.run([PDR, "ingest", str(tmp_path / "a.csv"), str(tmp_path / "bad.csv"), bad_name, str(long),
-                          str(tmp_path / "c.csv"), "-q", "--processed", str(processed)], capture_output=True)
+                          str(tmp_path / "fifo.csv"), str(tmp_path / "zero.csv"), str(tmp_path / "c.csv"), "-q",
+                          "--processed", str(processed)], capture_output=True, timeout=120)
     stderr = out.stderr.decode()
     no_traceback(stderr)
     assert out.returncode == 2
     errors = stderr.strip().splitlines()
-    assert len(errors) == 3 and all(e.startswith("pdr: error: ") for e in errors), errors
+    assert len(errors) == 5 and all(e.startswith("pdr: error: ") for e in errors), errors
     assert "bad.csv" in errors[0] and "na\\xefme.csv: the file name is not valid UTF-8" in errors[1]
     assert "expected at most 200" in errors[2]
+    assert "fifo.csv: a FIFO (named pipe)" in errors[3] and "zero.csv: a device" in errors[4]
     assert sorted(p.name for p in processed.iterdir()) == [".pdr.lock", "a", "c"]
 
 
