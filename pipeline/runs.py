@@ -58,6 +58,11 @@ def check_recording_name(stem: str, path: str | Path) -> None:
                        "reset; rename the recording", path=path)
 
 
+def glob_escape(text: str) -> str:
+    """``text`` matched literally by ``Path.glob`` (a recording may be named ``run[1].csv``)."""
+    return "".join(f"[{c}]" if c in "*?[" else c for c in text)
+
+
 def printable(path: str | Path) -> str:
     """A path (or a message naming one) whose name is not valid UTF-8, with the bad bytes escaped (``\\xff``)."""
     return str(path).encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
@@ -137,7 +142,8 @@ def resolve_runs(recording: str | Path, processed: Path) -> list[RunPaths]:
         return [RunPaths(item)]
     if item.suffix.lower() == ".csv":
         stem = item.stem
-        segs = sorted((p for p in Path(processed).glob(f"{stem}-seg*") if p.name[len(stem) + 4:].isdigit()),
+        matches = Path(processed).glob(f"{glob_escape(stem)}-seg*")
+        segs = sorted((p for p in matches if p.name[len(stem) + 4:].isdigit()),
                       key=lambda p: int(p.name[len(stem) + 4:]))
         found = ([Path(processed) / stem] if (Path(processed) / stem).is_dir() else []) + segs
         if not found:

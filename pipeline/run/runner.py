@@ -228,8 +228,8 @@ def run_pipeline(raw: Path, processed: Path, *, jobs: int = 2, force: bool = Fal
             from pipeline.validate.summary import write_summary
             try:
                 write_summary(processed)
-            except OSError as err:
-                raise PdrError(f"cannot write {SUMMARY_CSV}: {describe_failure(err, processed)}",
-                               path=processed) from None
+            except OSError as err:      # reported beside the recordings' own results, not instead of them
+                report.ran.append({"recording": SUMMARY_CSV, "status": "failed", "runs": [], "timing_s": {},
+                                   "error": f"cannot write it: {describe_failure(err, processed)}"})
     report.wall_s = time.perf_counter() - report.started
     return report

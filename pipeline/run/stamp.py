@@ -17,7 +17,7 @@ from pathlib import Path
 
 from pipeline.config import config_layers_for
 from pipeline.run.stages import STAGES, declared_outputs
-from pipeline.runs import RunPaths, SEGMENT_SUFFIX
+from pipeline.runs import SEGMENT_SUFFIX, RunPaths, glob_escape
 
 PACKAGE_ROOT = Path(__file__).resolve().parent.parent
 SCHEMA_ROOT = PACKAGE_ROOT.parent / "schemas"
@@ -77,11 +77,6 @@ def candidate_runs(processed: Path, csv: Path) -> list[Path]:
     found = [processed / stem] if (processed / stem).is_dir() else []
     found += [p for p in processed.glob(f"{glob_escape(stem)}-seg*") if SEGMENT_SUFFIX.fullmatch(p.name[len(stem):])]
     return found
-
-
-def glob_escape(text: str) -> str:
-    """``text`` matched literally by ``Path.glob`` (a recording may be named ``run[1].csv``)."""
-    return "".join(f"[{c}]" if c in "*?[" else c for c in text)
 
 
 def read_stamp(run_dir: Path) -> dict | None:

@@ -259,3 +259,15 @@ def test_every_capture_defect_of_the_interface_at_once(workspace):
     assert [q["line"] for q in ingest["quarantined"]] == [2, 26]    # the partial first line, the garbled one
     assert ingest["board_resets"] == 1 and ingest["rows"]["kept"] == 120
     assert snapshot(raw) == before
+
+
+def test_a_summary_that_cannot_be_written_is_reported_beside_the_recordings(workspace):
+    workspace.alone(0)
+    raw = workspace.fresh_raw()
+    (raw / "good0.csv").write_bytes(good_csv(0))
+    processed = workspace.processed()
+    (processed / "summary.csv").mkdir(parents=True)         # a folder where pdr writes its summary file
+    report = run_pipeline(raw, processed, jobs=1, code=CODE)
+    assert [(r["recording"], r["status"]) for r in report.ran] == [("good0.csv", "ok"), ("summary.csv", "failed")]
+    assert "Is a directory" in report.failed[0]["error"]
+    workspace.assert_as_alone(processed, 0)
