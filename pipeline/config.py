@@ -231,9 +231,17 @@ def resolve_config(layers: list[Path], base: RigConfig | None = None) -> RigConf
 
 def config_layers_for(csv_path: Path) -> list[Path]:
     """The TOML files that apply to a recording: raw/rig.toml, then raw/<name>.toml, when present."""
+    import os
+
+    from pipeline.io.files import regular_file_problem
+
     folder = csv_path.parent
-    layers = [folder / "rig.toml", csv_path.with_suffix(".toml")]
-    return [p for p in layers if p.is_file()]
+    layers = [p for p in (folder / "rig.toml", csv_path.with_suffix(".toml")) if os.path.lexists(p)]
+    for path in layers:         # a FIFO would block the read, a directory or dead link would be skipped unseen
+        problem = regular_file_problem(path)
+        if problem is not None:
+            raise ConfigError(problem.replace("CSV", "TOML"), path=path)
+    return layers
 
 
 def config_for_recording(csv_path: Path) -> RigConfig:

@@ -213,7 +213,7 @@ def run_pipeline(raw: Path, processed: Path, *, jobs: int = 2, force: bool = Fal
         for csv in folder.recordings:
             try:
                 stamp = stamp_for(csv, code)
-            except OSError as err:      # vanished or became unreadable since the scan
+            except (OSError, PdrError) as err:      # a rig TOML that is not a file; vanished since the scan
                 failed.append(_refused(csv.name, describe_failure(err)))
                 continue
             if not force and up_to_date(processed, csv, stamp):

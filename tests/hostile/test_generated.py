@@ -34,6 +34,8 @@ BAD = {
     "reserved": lambda raw, name: (raw / "discovery.csv").write_bytes(good_csv(0)),
     "segment name": lambda raw, name: (raw / "good1-seg2.csv").write_bytes(good_csv(1)),
     "case twin": lambda raw, name: (raw / "GOOD0.csv").write_bytes(good_csv(0)),
+    "toml fifo": lambda raw, name: ((raw / name).write_bytes(good_csv(1)), os.mkfifo(raw / (name[:-4] + ".toml"))),
+    "toml folder": lambda raw, name: ((raw / name).write_bytes(good_csv(0)), (raw / (name[:-4] + ".toml")).mkdir()),
 }
 # damaged but usable: processed, with the damage quarantined
 DAMAGED = {"repeated line": lambda k: with_line_repeated(good_csv(1), k),
@@ -49,7 +51,7 @@ folders = st.fixed_dictionaries({
 
 
 @pytest.mark.slow
-@settings(max_examples=3, deadline=None, derandomize=True,
+@settings(max_examples=4, deadline=None, derandomize=True,
           suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
 @given(folder=folders)
 def test_generated_raw_folders(workspace, folder):

@@ -23,6 +23,7 @@ BAD_ENTRIES = {
     "discovery.csv": "reserved for pdr's own entries",
     "l" * 240 + ".csv": "expected at most 200",
     "garbage.csv": "no recognisable columns",
+    "fifo_rig.csv": "fifo_rig.toml: a FIFO (named pipe), expected a regular TOML file",
 }
 NON_UTF8 = b"bad\xff.csv"
 
@@ -40,6 +41,8 @@ def _hostile_folder(raw) -> None:
     (raw / "discovery.csv").write_bytes(good_csv(0))
     (raw / ("l" * 240 + ".csv")).write_bytes(good_csv(0))
     (raw / "garbage.csv").write_text("this is not\na capture\n")
+    (raw / "fifo_rig.csv").write_bytes(good_csv(1))
+    os.mkfifo(raw / "fifo_rig.toml")
     with open(os.path.join(os.fsencode(raw), NON_UTF8), "wb") as fh:
         fh.write(good_csv(0))
     (raw / "DATA_EMPS.mat").write_bytes(b"MATLAB 5.0 MAT-file")
