@@ -34,7 +34,8 @@ def ensure_output_folder(processed: Path) -> Path:
 def processed_lock(processed: Path, wait_message: bool = True) -> Iterator[None]:
     """Exclusive lock on ``processed/`` for the duration of a command; a second one waits, saying so."""
     processed = ensure_output_folder(processed)
-    lock = FileLock(processed / LOCK_NAME, thread_local=False, preserve_lock_file=True)
+    # an OS lock or none: a soft (file-exists) lock would outlive a killed holder and make every later run wait
+    lock = FileLock(processed / LOCK_NAME, thread_local=False, preserve_lock_file=True, fallback_to_soft=False)
     try:
         try:
             lock.acquire(timeout=0)
