@@ -18,10 +18,11 @@ import typer
 from pipeline.run.lock import processed_lock
 from pipeline.run.report import RunReport, print_report
 from pipeline.run.runner import CHUNK_MAX, chunks, run_pipeline
-from pipeline.run.stamp import Stamp, code_version
+from pipeline.run.stages import process_recording
+from pipeline.run.stamp import Stamp, code_version, stamp_for
 
-__all__ = ["CHUNK_MAX", "RunReport", "Stamp", "chunks", "code_version", "print_report", "processed_lock",
-           "run_command", "run_pipeline"]
+__all__ = ["CHUNK_MAX", "RunReport", "Stamp", "chunks", "code_version", "print_report", "process_recording",
+           "processed_lock", "run_command", "run_pipeline", "stamp_for"]
 
 
 def run_command(

@@ -48,6 +48,11 @@ def _child_cpu() -> float:
     return usage.ru_utime + usage.ru_stime
 
 
+def process_recording(csv: Path, processed: Path, stamp) -> dict:
+    """All stages on one recording (``pdr record`` calls it for the capture it just made); never raises."""
+    return process_chunk([(csv, stamp)], processed)[0]
+
+
 def process_chunk(items: list, processed: Path, ingested: dict[str, dict] | None = None) -> list[dict]:
     """All stages on a few recordings (``(csv, stamp)`` pairs) in one worker task; never raises.
 
