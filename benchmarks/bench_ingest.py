@@ -33,7 +33,7 @@ def make_capture(rows: int, seed: int = 0, ide_prefix: bool = False) -> bytes:
     file down the general (line-by-line, still vectorised) path instead of the clean fast path.
     """
     rng = np.random.default_rng(seed)
-    t = np.arange(rows, dtype=np.int64) + (rng.random(rows) < 0.01)
+    t = np.arange(rows, dtype=np.int64) + np.cumsum(rng.random(rows) < 0.01)    # a late loop delays the rest
     counts = np.cumsum(rng.integers(-3, 4, rows))
     adc = rng.integers(480, 560, rows)
     d = np.where((np.arange(rows) // 2000) % 2 == 0, 1, -1)

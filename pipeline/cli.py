@@ -6,11 +6,12 @@ happen inside the command functions so ``pdr --help`` stays instant.
 
 from __future__ import annotations
 
+import os
 import sys
 
 import typer
 
-from pipeline.errors import PdrError
+from pipeline.errors import PdrError, describe_failure
 
 app = typer.Typer(
     help="pdr: pinion-double-rack recordings -> clean data, a validated hybrid model, "
@@ -45,9 +46,26 @@ _register()
 
 
 def main() -> None:
-    """Console entry point: a ``PdrError`` becomes one line on stderr and exit status 2."""
+    """Console entry point: every failure is one line on stderr, never a traceback.
+
+    A ``PdrError`` (the input's fault) exits 2; an ``OSError`` escaping a stage
+    (a folder that cannot be written, a full disk) is named the same way; any
+    other exception is a bug in pdr, reported as one line that says so
+    (``PDR_DEBUG=1`` shows the traceback).
+    """
+    for stream in (sys.stdout, sys.stderr):      # file names need not be valid UTF-8 (or fit the console)
+        if hasattr(stream, "reconfigure"):
+            stream.reconfigure(errors="backslashreplace")
     try:
         app()
     except PdrError as err:
         print(f"pdr: error: {err}", file=sys.stderr)
         sys.exit(2)
+    except KeyboardInterrupt:
+        print("pdr: interrupted", file=sys.stderr)
+        sys.exit(130)
+    except Exception as err:
+        if os.environ.get("PDR_DEBUG"):
+            raise
+        print(f"pdr: error: {describe_failure(err)}", file=sys.stderr)
+        sys.exit(2 if isinstance(err, OSError) else 3)

@@ -117,15 +117,24 @@ def _time_unit(key: str, value: Any) -> str:
     return value
 
 
+# Physically sensible ranges, wide enough for any bench rig of this kind (a 1 kHz logger, a 24-bit
+# ADC, Table I's misprinted Ra = 259 Ohm) and narrow enough that a slip of the exponent is refused.
+MODEL_BOUNDS = {"R": (1e-4, 10.0), "J": (1e-9, 1e3), "Ke": (1e-6, 1e3), "Kt": (1e-6, 1e3), "La": (1e-9, 1e3),
+                "Ra": (1e-4, 1e5), "K1": (1e-6, 1e7), "K2": (1e-6, 1e7), "b": (0.0, 1e3)}
+
+
+def _bounded(lo: float, hi: float, integer: bool = False) -> Checker:
+    return _number(allow_zero=lo == 0.0, lo=lo, hi=hi, integer=integer)
+
+
 _SECTIONS: dict[str, tuple[type, dict[str, Checker]]] = {
-    "encoder": (EncoderConfig, {"counts_per_rev": _number()}),
+    "encoder": (EncoderConfig, {"counts_per_rev": _bounded(1.0, 1e7)}),
     "current_sensor": (CurrentSensorConfig, {
-        "sensitivity_v_per_a": _number(), "zero_v": _zero_v,
-        "adc_vref": _number(), "adc_steps": _number(integer=True)}),
-    "drive": (DriveParams, {"v_in": _number()}),
-    "controller": (ControllerParams, {"period_s": _number(), "guard_rad": _number()}),
-    "model": (ModelParams, {name: _number(allow_zero=name in ModelParams.NON_NEGATIVE)
-                            for name in ModelParams.names()}),
+        "sensitivity_v_per_a": _bounded(1e-4, 100.0), "zero_v": _zero_v,
+        "adc_vref": _bounded(0.1, 50.0), "adc_steps": _bounded(2, 1 << 24, integer=True)}),
+    "drive": (DriveParams, {"v_in": _bounded(1e-3, 1000.0)}),
+    "controller": (ControllerParams, {"period_s": _bounded(1e-6, 60.0), "guard_rad": _bounded(1e-4, 1000.0)}),
+    "model": (ModelParams, {name: _bounded(*MODEL_BOUNDS[name]) for name in ModelParams.names()}),
     "columns": (ColumnsConfig, {"t_ms": _string, "counts": _string, "adc": _string, "dir": _string,
                                 "time_unit": _time_unit}),
     "ingest": (IngestConfig, {"max_bad_fraction": _number(lo=0.0, hi=1.0, allow_zero=True)}),
@@ -167,7 +176,27 @@ def _apply_layer(cfg: RigConfig, data: dict[str, Any], source: str) -> RigConfig
                 raise ConfigError(str(err), path=source, key=f"{section}.{key}") from None
             sources[f"{section}.{key}"] = source
         changes[section] = replace(changes.get(section, getattr(cfg, section)), **updates)
+    if "columns" in changes:
+        _check_columns(changes["columns"], source)
     return replace(cfg, **changes, sources=sources)
+
+
+def _check_columns(columns: ColumnsConfig, source: str) -> None:
+    """The time and encoder columns are required, and no two logical columns may name one raw column."""
+    for key in ("t_ms", "counts"):
+        if not getattr(columns, key):
+            what = ("the sample time" if key == "t_ms" else
+                    "the encoder count: every stage starts from the pinion angle (velocity, phases, guard "
+                    "overshoot, the model comparison), so a capture without it (e.g. a current-only motor step "
+                    "response) cannot be processed by pdr")
+            raise ConfigError(f"expected the name of the column holding {what}", path=source, key=f"columns.{key}")
+    named: dict[str, str] = {}
+    for key in ("t_ms", "counts", "adc", "dir"):
+        name = getattr(columns, key)
+        if name and name in named:
+            raise ConfigError(f"'{name}' is already the column of columns.{named[name]}; expected a different "
+                              f"raw column (or \"\" when not logged)", path=source, key=f"columns.{key}")
+        named[name] = key
 
 
 def default_config() -> RigConfig:
@@ -183,6 +212,9 @@ def read_toml(path: Path) -> dict[str, Any]:
         raise ConfigError(f"expected UTF-8 TOML text ({err.reason} at byte {err.start})", path=path) from None
     except OSError as err:
         raise ConfigError(f"cannot read: {err.strerror}", path=path) from None
+    if text.startswith("\ufeff"):
+        raise ConfigError("starts with a UTF-8 byte-order mark (BOM), which TOML does not allow; save it as "
+                          "UTF-8 without BOM", path=path, line=1)
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
@@ -199,9 +231,17 @@ def resolve_config(layers: list[Path], base: RigConfig | None = None) -> RigConf
 
 def config_layers_for(csv_path: Path) -> list[Path]:
     """The TOML files that apply to a recording: raw/rig.toml, then raw/<name>.toml, when present."""
+    import os
+
+    from pipeline.io.files import regular_file_problem
+
     folder = csv_path.parent
-    layers = [folder / "rig.toml", csv_path.with_suffix(".toml")]
-    return [p for p in layers if p.is_file()]
+    layers = [p for p in (folder / "rig.toml", csv_path.with_suffix(".toml")) if os.path.lexists(p)]
+    for path in layers:         # a FIFO would block the read, a directory or dead link would be skipped unseen
+        problem = regular_file_problem(path)
+        if problem is not None:
+            raise ConfigError(problem.replace("CSV", "TOML"), path=path)
+    return layers
 
 
 def config_for_recording(csv_path: Path) -> RigConfig:

@@ -40,3 +40,51 @@ class IngestError(PdrError):
 
 class SchemaError(PdrError):
     """A table that violates its schema in ``schemas/``."""
+
+
+LOW_SPACE_BYTES = 1 << 20      # less free space than this beside the outputs: a failure is put down to a full disk
+
+
+def describe_failure(err: BaseException, folder: str | Path | None = None) -> str:
+    """One line for an exception a stage raised: the user's problem in words, or an internal error.
+
+    A full or read-only disk surfaces from libraries in many shapes (``OSError``
+    with ``ENOSPC``, Rerun's "File-writer thread shut down prematurely"); when the
+    folder being written has less than ``LOW_SPACE_BYTES`` free, that is what the
+    line says, naming the folder.
+    """
+    import errno
+    import shutil
+
+    if isinstance(err, PdrError):
+        return str(err)
+    if isinstance(err, OSError) and err.errno in (errno.ENOSPC, errno.EDQUOT):
+        return f"no space left on the device writing {err.filename or folder}"
+    if folder is not None:
+        try:
+            if shutil.disk_usage(folder).free < LOW_SPACE_BYTES:
+                return f"no space left on the device writing {folder} ({type(err).__name__}: {err})"
+        except OSError:
+            pass
+    if isinstance(err, OSError) and err.strerror:
+        return f"{err.filename}: {err.strerror}" if err.filename else err.strerror
+    return f"internal error {type(err).__name__}: {err}"
+
+
+def for_each(items, work, folder: str | Path | None = None) -> int:
+    """``work(item)`` for every item; a failure is printed as one line on stderr and the rest still run.
+
+    What the stage commands given several recordings do: every one they can,
+    each failure reported, the count returned so the command exits non-zero
+    at the end.
+    """
+    import sys
+
+    failures = 0
+    for item in items:
+        try:
+            work(item)
+        except Exception as err:  # a bad input or a bug in pdr: never costs the other recordings
+            failures += 1
+            print(f"pdr: error: {describe_failure(err, folder)}", file=sys.stderr)
+    return failures

@@ -3,6 +3,13 @@
 A run is one logging segment of one raw recording.  A file with a single
 segment gives the run ``<stem>``; a file in which the board reset gives
 ``<stem>-seg1``, ``<stem>-seg2``, ... (see the ingest report).
+
+Run names are unique by construction: a recording whose stem could be taken
+for a segment (``foo-seg1.csv``) or for one of the pipeline's own entries in
+``processed/`` (``discovery``, ``summary.csv``, hidden names such as the lock)
+is refused by ``check_recording_name``, as is one whose run folder's files
+could not be named on a common file system.  Two recordings whose stems differ
+only in case are told apart by the raw-folder scan (``pipeline.run.recordings``).
 """
 
 from __future__ import annotations
@@ -24,6 +31,51 @@ def check_name(name: str) -> str:
     if not _NAME.match(name):
         raise PdrError(f"expected a recording name of letters, digits, '_', '-' or '.', got {name!r}", key="NAME")
     return name
+
+
+LOCK_NAME = ".pdr.lock"                 # processed/.pdr.lock: the lock every writing command holds
+DISCOVERY_DIR = "discovery"             # processed/discovery/<run>/: pdr discover's default output
+SUMMARY_CSV = "summary.csv"             # processed/summary.csv: one row per run
+RESERVED_NAMES = (DISCOVERY_DIR, SUMMARY_CSV)
+SEGMENT_SUFFIX = re.compile(r"-seg[0-9]+$")
+# A run's longest file name is ".<run>.mcap.<pid>.<n>.tmp" (an atomic write's temporary): with up to
+# 40 bytes for the rest and "-segNNNN", a stem of 200 bytes stays within the usual 255-byte limit.
+MAX_STEM_BYTES = 200
+
+
+def segment_run_name(stem: str, k: int) -> str:
+    """The run of a recording's ``k``-th kept segment (1-based) when the board reset."""
+    return f"{stem}-seg{k}"
+
+
+def check_recording_name(stem: str, path: str | Path) -> None:
+    """Refuse, naming the file, a recording stem that is not a usable, unique run name."""
+    from pipeline.errors import PdrError
+
+    try:
+        size = len(stem.encode("utf-8"))
+    except UnicodeEncodeError:
+        raise PdrError("the file name is not valid UTF-8; rename it (run names are UTF-8 folder names)",
+                       path=printable(path)) from None
+    if size > MAX_STEM_BYTES:
+        raise PdrError(f"the file name is {size} bytes long, expected at most {MAX_STEM_BYTES} before '.csv' "
+                       f"(its outputs' names must fit the file system); rename it", path=path)
+    if not stem or stem.startswith(".") or stem.casefold() in RESERVED_NAMES:
+        raise PdrError(f"'{stem}' is reserved for pdr's own entries in processed/ ({', '.join(RESERVED_NAMES)}, "
+                       f"hidden names); rename the recording", path=path)
+    if SEGMENT_SUFFIX.search(stem):
+        raise PdrError("names ending in -seg<N> are reserved for the segments of a recording whose board "
+                       "reset; rename the recording", path=path)
+
+
+def glob_escape(text: str) -> str:
+    """``text`` matched literally by ``Path.glob`` (a recording may be named ``run[1].csv``)."""
+    return "".join(f"[{c}]" if c in "*?[" else c for c in text)
+
+
+def printable(path: str | Path) -> str:
+    """A path (or a message naming one) whose name is not valid UTF-8, with the bad bytes escaped (``\\xff``)."""
+    return str(path).encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
 
 
 @dataclass(frozen=True)
@@ -63,7 +115,7 @@ class RunPaths:
     def rrd(self) -> Path: return self.root / f"{self.name}.rrd"
     @property
     def overview_png(self) -> Path: return self.root / "overview.png"
-    # run.py's incremental cache
+    # pdr run's incremental cache (run/stamp.py)
     @property
     def stamp(self) -> Path: return self.root / "stamp.json"
 
@@ -92,11 +144,14 @@ def resolve_runs(recording: str | Path, processed: Path) -> list[RunPaths]:
     """The processed runs a user means by RECORDING: a processed run folder, a run name, or a raw CSV path
     (its runs ``<stem>`` or ``<stem>-seg1``, ``-seg2``, ...).  Refuses, naming it, when nothing matches."""
     item = Path(recording)
+    if item.name in RESERVED_NAMES or item.name.startswith("."):
+        raise PdrError(f"'{item.name}' is one of pdr's own entries, not a run", path=str(recording))
     if item.is_dir():
         return [RunPaths(item)]
     if item.suffix.lower() == ".csv":
         stem = item.stem
-        segs = sorted((p for p in Path(processed).glob(f"{stem}-seg*") if p.name[len(stem) + 4:].isdigit()),
+        matches = Path(processed).glob(f"{glob_escape(stem)}-seg*")
+        segs = sorted((p for p in matches if p.name[len(stem) + 4:].isdigit()),
                       key=lambda p: int(p.name[len(stem) + 4:]))
         found = ([Path(processed) / stem] if (Path(processed) / stem).is_dir() else []) + segs
         if not found:

@@ -15,23 +15,32 @@ def derive(
     json_out: Annotated[bool, typer.Option("--json", help="Print the summaries as one JSON object.")] = False,
 ) -> None:
     """Derive kinematics, phases, overshoot, cycles and summary.json for ingested recordings.
+    Every recording it can is derived; exit status 2 if any failed.
 
     Example: pdr derive raw/paper_run.csv   (or: pdr derive paper_run, pdr derive processed/paper_run)
     """
     import json
 
     from pipeline.derive.stage import derive_run
+    from pipeline.errors import for_each
+    from pipeline.run.lock import processed_lock
     from pipeline.runs import resolve_runs
 
-    runs = [r for item in recordings for r in resolve_runs(item, processed)]
     summaries = {}
-    for paths in runs:
-        summary = derive_run(paths)
-        summaries[paths.name] = summary
-        if not json_out:
-            typer.echo(headline(summary))
+
+    def one(item: str) -> None:
+        for paths in resolve_runs(item, processed):
+            summary = derive_run(paths)
+            summaries[paths.name] = summary
+            if not json_out:
+                typer.echo(headline(summary))
+
+    with processed_lock(processed):
+        failures = for_each(recordings, one, processed)
     if json_out:
         typer.echo(json.dumps(summaries, indent=2, sort_keys=True))
+    if failures:
+        raise typer.Exit(2)
 
 
 def headline(summary: dict) -> str:

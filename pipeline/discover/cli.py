@@ -35,7 +35,7 @@ def discover(
     from pipeline.discover.report import dumps, write_outputs
     from pipeline.discover.stage import augmented_effects, discover_run
     from pipeline.errors import PdrError
-    from pipeline.runs import resolve_runs
+    from pipeline.runs import DISCOVERY_DIR, resolve_runs
 
     item = Path(recording)
     if item.suffix.lower() == ".csv" and not item.is_file():
@@ -61,7 +61,7 @@ def discover(
         if len(runs) > 1:
             doc["segments"] = {"used": paths.name, "others": [p.name for p in runs if p != paths]}
         root = processed if item.suffix.lower() == ".csv" or not item.is_dir() else item.parent
-        out_dir = out if out is not None else Path(root) / "discovery" / paths.name
+        out_dir = out if out is not None else Path(root) / DISCOVERY_DIR / paths.name
         written = write_outputs(out_dir, d, doc, rrd=not no_rrd)
     if adopt:
         if not d.effects:

@@ -96,8 +96,9 @@ def localisation_png(d: Discovery) -> bytes:
     from matplotlib.figure import Figure
 
     keys = [k for k, rows in d.tables_before.items() if rows]
-    fig = Figure(figsize=(12, 2.2 * ((len(keys) + 2) // 3) + 0.6))
-    axes = fig.subplots((len(keys) + 2) // 3, 3, squeeze=False).ravel()
+    n_rows = max(1, (len(keys) + 2) // 3)       # one (empty) row when no table has rows, e.g. a stuck timer
+    fig = Figure(figsize=(12, 2.2 * n_rows + 0.6))
+    axes = fig.subplots(n_rows, 3, squeeze=False).ravel()
     styles = {"theta": "o-", "current": "s--"}
     for ax, key in zip(axes, keys):
         for label, tables, color in (("before", d.tables_before, _COLORS["base"]),
@@ -116,6 +117,8 @@ def localisation_png(d: Discovery) -> bytes:
         ax.set_visible(False)
     if keys:
         axes[0].legend(fontsize=7)
+    else:
+        fig.text(0.5, 0.5, "no state bins or event lags to localise the residual in", ha="center", va="center")
     fig.suptitle(f"{d.meas.name}: residual RMS / noise (1 = noise floor)", fontsize=10)
     fig.tight_layout()
     return _png(fig)

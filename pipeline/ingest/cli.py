@@ -16,12 +16,20 @@ def ingest(
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No console summary.")] = False,
 ) -> None:
     """Ingest recordings into schema-checked Parquet and MCAP, with units and an ingest report.
+    Every recording it can is ingested; exit status 2 if any failed.
 
     Example: pdr ingest raw/run1.csv raw/run2.csv --processed processed
     """
+    from pipeline.errors import for_each
     from pipeline.ingest.stage import ingest_recording, summary_text
+    from pipeline.run.lock import processed_lock
 
-    for csv_path in recordings:
+    def one(csv_path: Path) -> None:
         result = ingest_recording(csv_path, processed)
         if not quiet:
             typer.echo(summary_text(result.report))
+
+    with processed_lock(processed):
+        failures = for_each(recordings, one, processed)
+    if failures:
+        raise typer.Exit(2)

@@ -24,6 +24,7 @@ from pipeline.errors import IngestError
 from pipeline.ingest.convert import rad_per_count, volts_per_step
 from pipeline.ingest.parse import (LOGICAL, TIME_RE, TRIM, ParsedFile, Segment, has_control_bytes, header_fields,
                                    layout_from_header, positional_layout)
+from pipeline.ingest.plausible import needs_cleaning
 from pipeline.ingest.timing import COUNTER_RANGE, UNIT_S
 
 _PLAIN = b"0123456789,-.\r\n"
@@ -168,7 +169,8 @@ def read_plain_signals(data: bytes, cfg: RigConfig, source: str) -> tuple[Parsed
     None for anything else, which ``parse_plain`` or the general path reads.
 
     What the kernel takes, the general path would read as one segment with no row quarantined, no
-    time going back and no reset (``segments``): nothing is left to clean but the zero estimate.
+    time going back or repeated, no reset (``segments``) and no impossible encoder jump
+    (``plausible``): nothing is left to clean but the zero estimate.
     """
     if len(data) < KERNEL_MIN_BYTES:            # before the layout: small captures have theirs read once, by parse_plain
         return None
@@ -182,4 +184,6 @@ def read_plain_signals(data: bytes, cfg: RigConfig, source: str) -> tuple[Parsed
     scale = [0.0, UNIT_S[cfg.columns.time_unit], span or np.inf, rad_per_count(cfg), volts_per_step(cfg),
              float(cs.zero_v) if configured else np.nan, cs.sensitivity_v_per_a]
     cols = read_signals(memoryview(data)[lay.body_start:], at, scale, lay.first_line, configured)
-    return None if cols is None else (lay.parsed({k: cols[k] for k in lay.layout}, cols["line"]), cols)
+    if cols is None or needs_cleaning(cols["t_raw"], cols["counts"], cfg.columns.time_unit, cfg):
+        return None
+    return lay.parsed({k: cols[k] for k in lay.layout}, cols["line"]), cols

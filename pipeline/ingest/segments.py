@@ -15,6 +15,7 @@ from pipeline.config import RigConfig
 from pipeline.errors import IngestError
 from pipeline.ingest.convert import range_violations
 from pipeline.ingest.parse import Quarantined, Segment, reframe
+from pipeline.ingest.plausible import lone_jumps, persistent_jumps, repeated_times
 from pipeline.ingest.timing import COUNTER_RANGE, UNIT_S, first_backward, lone_out_of_order, unwrap
 
 RESTART_WITHIN_S = 10.0       # time dropping to below this (s since boot) with no header: a board reset
@@ -80,6 +81,27 @@ def split_restarts(seg: Segment, unit: str) -> list[Segment]:
 
 
 def clean_segment(seg: Segment, cfg: RigConfig, source: str) -> tuple[np.ndarray, int]:
+    """Make a segment's time increase strictly or refuse; the rows no rig can produce are quarantined
+    or flagged (``plausible``)."""
+    t, wraps = _ordered(seg, cfg, source)
+    repeated = repeated_times(t)
+    if 2 * repeated.sum() >= len(t):        # a stuck timer, not a repeated line: reported as such (timing)
+        repeated[:] = False
+    first_of = np.maximum.accumulate(np.where(repeated, 0, np.arange(len(t))))
+    line = seg.line
+    _quarantine(seg, repeated, lambda i: f"repeated timestamp: the same time as line {int(line[first_of[i]])} "
+                                         f"(that row kept)")
+    t = t[~repeated]
+    if "counts" in seg.values:
+        jumps = lone_jumps(t, seg.values["counts"], cfg.columns.time_unit, cfg)
+        _quarantine(seg, jumps, lambda i: "encoder jump: the count leaves both neighbours faster than the "
+                                          "declared motor can turn (drive.v_in / model.Ke)")
+        t = t[~jumps]
+        seg.notes.extend(persistent_jumps(t, seg.values["counts"], seg.line, cfg.columns.time_unit, cfg))
+    return t, wraps
+
+
+def _ordered(seg: Segment, cfg: RigConfig, source: str) -> tuple[np.ndarray, int]:
     """Make a segment's time non-decreasing or refuse; phase-shifted rows are re-framed first."""
     rows_before = len(seg.line)
     t, wraps, back = _order_time(seg, cfg)

@@ -20,7 +20,7 @@ from pipeline.ingest.parse import ParsedFile, Quarantined, parse_capture
 from pipeline.ingest.plain import parse_plain, read_plain_signals
 from pipeline.ingest.segments import clean_segment, split_restarts
 from pipeline.ingest.timing import timing_stats
-from pipeline.runs import RunPaths, run_paths
+from pipeline.runs import RunPaths, check_recording_name, run_paths, segment_run_name
 from pipeline.schemas import load_schema
 
 MIN_SEGMENT_ROWS = 2          # a segment with fewer kept rows has no timing and is flagged, not a run
@@ -124,7 +124,7 @@ def read_capture(data: bytes, cfg: RigConfig, source: str, stem: str) -> Capture
     zeros, refusals = _current_zeros(parsed, flagged, cfg, source)
     flagged |= refusals
     keep = [s for s in parsed.segments if s.index not in flagged]
-    names = {s.index: stem if len(keep) == 1 else f"{stem}-seg{k + 1}" for k, s in enumerate(keep)}
+    names = {s.index: stem if len(keep) == 1 else segment_run_name(stem, k + 1) for k, s in enumerate(keep)}
     runs = [RunData(names[seg.index], to_signals(seg.values, seg.line, seconds_from_start(t, cfg.columns.time_unit),
                                                  seg.index, cfg, zeros.get(seg.index)), {})
             for seg, (t, _) in zip(parsed.segments, times) if seg.index in names]
@@ -228,7 +228,12 @@ def ingest_signals(data: bytes, cfg: RigConfig, source: str, stem: str, processe
 def ingest_recording(csv_path: Path, processed: Path, *, config: RigConfig | None = None) -> IngestResult:
     """Read one raw CSV (never modified), resolve its rig TOML layers, write one run per kept segment."""
     from pipeline.ingest.write import write_run
+    from pipeline.io.files import regular_file_problem
     csv_path = Path(csv_path)
+    check_recording_name(csv_path.stem, csv_path)
+    problem = regular_file_problem(csv_path)        # never open a FIFO or a device: it may block or never end
+    if problem is not None:
+        raise IngestError(problem, path=csv_path)
     cfg = config if config is not None else config_for_recording(csv_path)
     try:
         data = csv_path.read_bytes()

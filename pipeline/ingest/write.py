@@ -14,7 +14,7 @@ import pyarrow.parquet as pq
 
 from pipeline.columns import column
 from pipeline.config import RigConfig
-from pipeline.io.atomic import atomic_path, syncs_deferred, write_json
+from pipeline.io.atomic import atomic_path, remove_stale_temporaries, syncs_deferred, write_json
 from pipeline.runs import RunPaths
 from pipeline.schemas import load_schema
 
@@ -92,13 +92,6 @@ def mcap_metadata(cfg: RigConfig, report: dict) -> dict[str, dict[str, str]]:
                        "sources": json.dumps(cfg.sources, sort_keys=True)},
         "recording": {"source": str(report["recording"]), "sha256": report["sha256"], "run": report["run"]},
     }
-
-
-def remove_stale_temporaries(root: Path) -> None:
-    """Temporary files a killed run left behind (never the outputs themselves)."""
-    if root.is_dir():
-        for tmp in root.glob(".*.tmp"):
-            tmp.unlink(missing_ok=True)
 
 
 def write_signals(paths: RunPaths, df: pd.DataFrame, row_group_rows: int = ROW_GROUP_ROWS) -> None:

@@ -34,6 +34,9 @@ def deferred_sync() -> Iterator[None]:
     write too); nested uses sync once, at the outermost exit.
     """
     global _deferred_depth
+    if not hasattr(os, "sync"):         # Windows: no whole-system sync, so every file keeps its own fsync
+        yield
+        return
     _deferred_depth += 1
     try:
         yield
@@ -76,6 +79,14 @@ def _create_temp(target: Path) -> tuple[int, Path]:
         except FileNotFoundError:
             target.parent.mkdir(parents=True, exist_ok=True)
     raise FileExistsError(f"no free temporary name beside {target}")
+
+
+def remove_stale_temporaries(root: Path) -> None:
+    """Temporary files a killed process left behind in ``root`` (never the outputs themselves); only for a
+    caller that holds ``processed/``'s lock or owns ``root``, so no live writer's temporary is removed."""
+    if root.is_dir():
+        for tmp in root.glob(".*.tmp"):
+            tmp.unlink(missing_ok=True)
 
 
 def _fsync_path(path: Path) -> None:

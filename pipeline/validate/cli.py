@@ -21,24 +21,33 @@ def validate(
     no_png: bool = typer.Option(False, "--no-png", help="Skip the overview PNG."),
 ) -> None:
     """Rerun the hybrid model on derived runs (closed loop and replay) and write validation.json,
-    comparison.parquet, <run>.rrd and overview.png.
+    comparison.parquet, <run>.rrd and overview.png. Every run it can is validated; exit status 2 if any failed.
 
     Example: pdr validate raw/example.csv --model my_model.toml
     """
-    from pipeline.run import processed_lock
+    from pipeline.errors import for_each
+    from pipeline.run.lock import processed_lock
     from pipeline.runs import resolve_runs
     from pipeline.validate.stage import validate_run
     from pipeline.validate.summary import render_summary, write_summary
 
-    runs = [r for rec in recordings for r in resolve_runs(rec, processed)]
-    with processed_lock(processed):
-        for paths in runs:
+    done: list[str] = []
+
+    def one(rec: str) -> None:
+        for paths in resolve_runs(rec, processed):
             row = validate_run(paths, model, rrd=not no_rrd, png=not no_png)
+            done.append(paths.name)
             typer.echo(f"{row['run']}: replay MSE theta {row['replay_theta_mse']:.4g} rad^2, "
                        f"omega {row['replay_omega_mse']:.4g} (rad/s)^2"
                        + (f", current {row['replay_current_mse']:.4g} A^2" if row['replay_current_mse'] is not None else ""))
+
+    with processed_lock(processed):
+        failures = for_each(recordings, one, processed)
         table = write_summary(processed)
-    render_summary(table[table["run"].isin([r.name for r in runs])])
+    if done:
+        render_summary(table[table["run"].isin(done)])
+    if failures:
+        raise typer.Exit(2)
 
 
 def gate(

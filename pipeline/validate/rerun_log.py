@@ -335,7 +335,8 @@ def stats_markdown(name: str, validation: dict, derived: dict[str, dict[str, np.
         lines.append(f"- measured: {me['energy_paper_j']:.3f} J")
     for way in ways:
         err = validation[way]["energy_error"]
-        extra = f" ({err['paper_pct']:+.2f} % vs measured)" if err else ""
+        # no percentage when the measured energy is zero (a constant current): nothing to compare against
+        extra = f" ({err['paper_pct']:+.2f} % vs measured)" if err and err.get("paper_pct") is not None else ""
         lines.append(f"- {way}: {validation[way]['energy']['energy_paper_j']:.3f} J{extra}")
     for title, key in (("Per phase (derive stage)", "phases"), ("Guard overshoot per crossing (derive stage)",
                                                                 "overshoot")):

@@ -185,5 +185,7 @@ def test_command_accepts_a_raw_csv_a_run_name_and_a_folder(tmp_path):
     assert json.loads(res.output)["rec-seg1"]["samples"] == len(sig)
     res = runner.invoke(app, ["derive", str(processed / "rec-seg2"), "--processed", str(processed)])
     assert res.exit_code == 0 and (processed / "rec-seg2" / "summary.json").is_file()
-    res = runner.invoke(app, ["derive", "nope", "--processed", str(processed)])
-    assert res.exit_code != 0 and isinstance(res.exception, PdrError)
+    res = runner.invoke(app, ["derive", "nope", "rec-seg1", "--processed", str(processed)])
+    # the bad name is one line, the good run after it still derived, the exit status non-zero
+    assert res.exit_code == 2 and "pdr: error: nope: expected a processed run folder" in res.output
+    assert "rec-seg1:" in res.output

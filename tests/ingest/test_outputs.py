@@ -187,7 +187,8 @@ def test_cli_refusals_one_line_nonzero(tmp_path, data, toml, message):
     assert out.returncode == 2
     lines = out.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("pdr: error: ") and message in lines[0]
-    assert not (tmp_path / "processed").exists()
+    # the command holds processed/'s lock (created with the folder); nothing else is written
+    assert [p.name for p in (tmp_path / "processed").iterdir()] == [".pdr.lock"]
 
 
 def _big_capture(n: int, offset: int) -> bytes:

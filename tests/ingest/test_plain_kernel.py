@@ -226,14 +226,21 @@ def test_signal_rows_give_the_general_paths_tables_and_report_or_decline(rows, c
 @given(st.lists(row, min_size=2, max_size=40), rigs, st.booleans(), st.sampled_from(["\n", "\r\n"]),
        st.sampled_from([0, 1 << 30]))
 def test_signal_rows_take_every_capture_in_range_and_time_order(rows, cfg, header, eol, split_min_bytes):
+    """... except those with a repeated time or an impossible encoder jump, which the general path cleans."""
+    import numpy as np
+
     from pipeline.ingest import plain_kernel
+    from pipeline.ingest.plausible import needs_cleaning
     steps = cfg.current_sensor.adc_steps
     rows = [r | {"adc": r["adc"] % steps} for r in rows]
     data = _capture(rows, cfg, header, eol, sort=True)
+    ordered = sorted(rows, key=lambda r: r["t_raw"])
+    dirty = needs_cleaning(np.array([r["t_raw"] for r in ordered]), np.array([r["counts"] for r in ordered]),
+                           cfg.columns.time_unit, cfg)
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(plain_kernel, "SPLIT_MIN_BYTES", split_min_bytes)
         mp.setattr(plain, "KERNEL_MIN_BYTES", 0)
-        assert plain.read_plain_signals(data, cfg, "k.csv") is not None
+        assert (plain.read_plain_signals(data, cfg, "k.csv") is not None) == (not dirty)
 
 
 def test_large_capture_gives_the_same_signals_through_signal_rows(monkeypatch):
@@ -251,9 +258,14 @@ def test_large_capture_gives_the_same_signals_through_signal_rows(monkeypatch):
     ("60,5,9,2", False), ("60,5,9,-2", False),                          # dir in -1..1
     ("60,999999999999999999,9,0", True), ("60,-999999999999999999,9,0", True),
     ("60,1000000000000000000,9,0", False), ("40,5,9,0", False),         # 19 digits; time going back
+    ("60,999999999999999999,9,0|0", False), ("50,5,9,0", False),        # a jump no motor makes; time repeated
 ])
 def test_signal_rows_decline_at_the_range_rules_edges(last, taken):
-    data = f"t_ms,counts,adc,dir\n50,0,511,0\n{last}\n".encode()
+    # the first row's count near the last's, unless "|0" asks for 0 (an 18-digit jump within 10 ms)
+    last, _, first = last.partition("|")
+    count = last.split(",")[1]
+    first = first or (count[:-1] + "0" if len(count) > 3 else "0")
+    data = f"t_ms,counts,adc,dir\n50,{first},511,0\n{last}\n".encode()
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(plain, "KERNEL_MIN_BYTES", 0)
         assert (plain.read_plain_signals(data, CFG, "k.csv") is not None) == taken

@@ -82,6 +82,8 @@ def test_vectorised_and_line_parser_agree(rows, noise):
 def test_whole_files_keep_every_valid_row(rows, crlf, header):
     rows = sorted(rows, key=lambda r: r["t_raw"])
     rows = [r for r in rows if r["t_raw"] - rows[0]["t_raw"] < 2**31]      # no counter wrap in this test
+    # a count a motor can reach: one count per sample from the first row's (time steps are >= 1 ms)
+    rows = [r | {"counts": rows[0]["counts"] + k} for k, r in enumerate(rows)]
     eol = "\r\n" if crlf else "\n"
     text = ("t_ms,counts,adc,dir" + eol if header else "") + eol.join(format_line(r, LAYOUT, 4) for r in rows) + eol
     result = _ingest(text.encode())

@@ -1,0 +1,235 @@
+"""``pdr run``'s imperative shell: the raw folder, the lock, the process pool, the end-of-run summary file.
+
+Parallel: recordings are independent, so they go to a process pool (both
+cores by default), a few per task (``chunks``) so that one ``rerun rrd
+verify`` checks several files.  Where the platform has it, workers come from
+a ``forkserver`` that has already imported numpy, pandas, pyarrow, rerun and
+matplotlib, so a worker starts in milliseconds; elsewhere (Windows) they are
+spawned.  Either way that start takes ~2 s on one core; meanwhile this process
+ingests recordings from the end of the list (``ingest_ahead``), which the
+workers then skip.  A worker whose parent dies exits too (``_watch_parent``):
+a ``kill -9`` of ``pdr run`` leaves no process behind.
+
+One bad recording never stops the others: its error is reported, its stale
+outputs are withdrawn so ``pdr gate`` cannot pass on old figures, and the exit
+status is non-zero.  Two ``pdr run`` on one folder run one after the other
+(``processed_lock``); the second finds everything up to date.
+"""
+
+from __future__ import annotations
+
+import importlib
+import multiprocessing
+import os
+import threading
+import time
+from pathlib import Path
+
+from pipeline.errors import PdrError, describe_failure
+from pipeline.io.atomic import deferred_sync, remove_stale_temporaries
+from pipeline.run.lock import processed_lock
+from pipeline.run.recordings import scan_raw
+from pipeline.run.report import RunReport
+from pipeline.run.stages import ingest_ahead, process_chunk
+from pipeline.run.stamp import Stamp, code_version, previous_runs, prune_orphans, stamp_for, up_to_date, withdraw
+from pipeline.runs import SUMMARY_CSV
+
+# Imported once in the forkserver, inherited by every worker.
+PRELOAD = ["numpy", "pandas", "pyarrow.parquet", "rerun", "matplotlib.figure", "pipeline.run.stages",
+           "pipeline.ingest.stage", "pipeline.derive.stage", "pipeline.validate.stage",
+           "pipeline.validate.rerun_log", "pipeline.validate.warmup"]
+CHUNK_MAX = 4      # recordings per worker task: one verify call for 4 files instead of 4 starts of the tool
+
+
+def start_method() -> str:
+    """``forkserver`` where the platform has it (Linux, macOS), else ``spawn`` (Windows)."""
+    return "forkserver" if "forkserver" in multiprocessing.get_all_start_methods() else "spawn"
+
+
+def _watch_parent() -> None:
+    """Worker initializer: exit as soon as the process that made the pool is gone (even by ``kill -9``)."""
+    parent = multiprocessing.parent_process()
+    if parent is None:
+        return
+
+    def wait() -> None:
+        parent.join()
+        os._exit(1)
+
+    threading.Thread(target=wait, name="pdr-parent-watch", daemon=True).start()
+
+
+def make_pool(jobs: int, method: str | None = None):
+    from concurrent.futures import ProcessPoolExecutor
+
+    method = method or start_method()
+    ctx = multiprocessing.get_context(method)
+    if method == "forkserver":
+        ctx.set_forkserver_preload(PRELOAD)
+    return ProcessPoolExecutor(max_workers=jobs, mp_context=ctx, initializer=_watch_parent)
+
+
+def _isolated(csv: Path, processed: Path, stamp: Stamp, method: str | None) -> dict:
+    from concurrent.futures.process import BrokenProcessPool
+
+    with make_pool(1, method) as pool:
+        try:
+            return pool.submit(process_chunk, [(csv, stamp)], processed).result()[0]
+        except BrokenProcessPool as err:
+            withdraw(processed, previous_runs(processed, csv))
+            return {"recording": csv.name, "status": "failed", "runs": [],
+                    "error": f"the worker process died while processing it ({err})", "timing_s": {}}
+
+
+def chunks(todo: list, jobs: int) -> list[list]:
+    """Consecutive slices of ``todo``: up to ``CHUNK_MAX`` each, small enough that every worker gets several.
+
+    The last ``2 * jobs`` slices hold half as many, so the workers finish
+    within about one recording of each other instead of one whole chunk.
+    """
+    size = max(1, min(CHUNK_MAX, len(todo) // (4 * jobs)))
+    tail_size = max(1, size // 2)
+    tail = min(len(todo), 2 * jobs * tail_size) if size > 1 else 0
+    head = (len(todo) - tail) // size * size
+    return ([todo[i:i + size] for i in range(0, head, size)]
+            + [todo[i:i + tail_size] for i in range(head, len(todo), tail_size)])
+
+
+def _start_pool(pool) -> None:
+    """Start the pool's workers (returns when one has run a task)."""
+    from concurrent.futures.process import BrokenProcessPool
+
+    try:
+        pool.submit(os.getpid).result()
+    except BrokenProcessPool:      # the submissions that follow see it and retry each recording alone
+        pass
+
+
+def _ingest_ahead(todo: list[tuple[Path, Stamp]], processed: Path, starting: threading.Thread) -> dict[str, dict]:
+    """Use the core that is idle while the workers start: ingest recordings from the end of the list.
+
+    Stops as soon as the pool has started (``starting`` finished); the workers
+    then skip the ingest of what was done here.  The summary's pandas import
+    comes first (the ingest needs it too).
+    """
+    importlib.import_module("pipeline.validate.summary")
+    ahead: dict[str, dict] = {}
+    with deferred_sync():
+        for csv, _stamp in reversed(todo):
+            if not starting.is_alive():
+                break
+            ahead[csv.name] = ingest_ahead(csv, processed)
+    return ahead
+
+
+def _failed_ahead(csv: Path, processed: Path, info: dict) -> dict:
+    """The result of a recording whose ingest failed in ``_ingest_ahead`` (it goes to no worker)."""
+    withdraw(processed, sorted(set(previous_runs(processed, csv)) | set(info["runs"])))
+    return {"recording": csv.name, "status": "failed", "runs": info["runs"], "error": info["error"],
+            "timing_s": {"ingest": info["wall_s"]}, "cpu_s": info["cpu_s"], "cpu_stage_s": {"ingest": info["cpu_s"]}}
+
+
+def _execute(todo: list[tuple[Path, Stamp]], processed: Path, jobs: int, show_progress: bool,
+             report: RunReport, method: str | None) -> list[dict]:
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    results: list[dict] = []
+    with Progress(TextColumn("[bold]pdr run"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                  TextColumn("{task.description}"), disable=not show_progress, transient=False) as bar:
+        task = bar.add_task("", total=len(todo))
+        if jobs <= 1 or len(todo) <= 1:
+            for chunk in chunks(todo, 1):
+                bar.update(task, description=chunk[0][0].name)
+                results.extend(process_chunk(chunk, processed))
+                bar.advance(task, len(chunk))
+            return results
+        from concurrent.futures import as_completed
+        from concurrent.futures.process import BrokenProcessPool
+
+        broken: list[tuple[Path, Stamp]] = []
+        with make_pool(min(jobs, len(todo)), method) as pool:
+            # The first submit blocks until the workers have imported everything (~2 s on one core):
+            # it waits in a thread while this one ingests.
+            starting = threading.Thread(target=_start_pool, args=(pool,), daemon=True)
+            starting.start()
+            ahead = _ingest_ahead(todo, processed, starting)
+            starting.join()
+            report.pool_ready_s, report.ingested_ahead = time.perf_counter() - report.started, len(ahead)
+            failed = {csv.name for csv, _stamp in todo if ahead.get(csv.name, {}).get("error")}
+            for csv, _stamp in todo:
+                if csv.name in failed:
+                    results.append(_failed_ahead(csv, processed, ahead.pop(csv.name)))
+                    bar.advance(task)
+            todo = [item for item in todo if item[0].name not in failed]
+            futures = {}
+            for chunk in chunks(todo, jobs):
+                try:
+                    futures[pool.submit(process_chunk, chunk, processed,
+                                        {c.name: ahead[c.name] for c, _s in chunk if c.name in ahead})] = chunk
+                except BrokenProcessPool:           # the pool died already (while starting): retried below
+                    broken.extend(chunk)
+            for fut in as_completed(futures):
+                chunk = futures[fut]
+                try:
+                    results.extend(fut.result())
+                except BrokenProcessPool:
+                    broken.extend(chunk)
+                    continue
+                bar.update(task, description=chunk[-1][0].name)
+                bar.advance(task, len(chunk))
+        # A worker that dies (e.g. a crash in a native library) takes every pending recording
+        # with it: retry those one by one, each in a fresh worker, so only the culprit fails.
+        for csv, stamp in sorted(broken, key=lambda item: item[0]):
+            bar.update(task, description=f"{csv.name} (retry)")
+            results.append(_isolated(csv, processed, stamp, method))
+            bar.advance(task)
+    return results
+
+
+def _refused(name: str, reason: str) -> dict:
+    return {"recording": name, "status": "failed", "runs": [], "error": f"raw entry refused: {reason}",
+            "timing_s": {}}
+
+
+def run_pipeline(raw: Path, processed: Path, *, jobs: int = 2, force: bool = False,
+                 show_progress: bool = False, code: str | None = None, method: str | None = None) -> RunReport:
+    """The imperative shell of ``pdr run`` (also what the benchmark and tests call).
+
+    ``code`` pins the code version in the stamps (default: ``code_version()``),
+    for callers that must not see a source tree being edited as a code change;
+    ``method`` the pool's start method (default: ``start_method()``).
+    """
+    raw, processed = Path(raw), Path(processed)
+    if not raw.is_dir():
+        raise PdrError("raw folder not found (expected a folder of <name>.csv recordings)", path=raw)
+    report = RunReport(started=time.perf_counter())
+    with processed_lock(processed):
+        remove_stale_temporaries(processed)         # a killed run's summary.csv temporary
+        folder = scan_raw(raw)
+        report.ignored = folder.ignored
+        failed = [_refused(name, reason) for name, reason in folder.refused.items()]
+        code = code if code is not None else code_version()
+        todo = []
+        for csv in folder.recordings:
+            try:
+                stamp = stamp_for(csv, code)
+            except (OSError, PdrError) as err:      # a rig TOML that is not a file; vanished since the scan
+                failed.append(_refused(csv.name, describe_failure(err)))
+                continue
+            if not force and up_to_date(processed, csv, stamp):
+                report.skipped.append(csv.name)
+            else:
+                todo.append((csv, stamp))
+        withdrawn = sum(withdraw(processed, previous_runs(processed, raw / r["recording"])) for r in failed)
+        ran = _execute(todo, processed, jobs, show_progress, report, method) if todo else []
+        report.ran = sorted(ran + failed, key=lambda r: r["recording"])
+        report.removed = prune_orphans(processed, raw, {c.name for c in folder.recordings} | set(folder.refused))
+        if todo or withdrawn or report.removed or not (processed / SUMMARY_CSV).is_file():
+            from pipeline.validate.summary import write_summary
+            try:
+                write_summary(processed)
+            except OSError as err:      # reported beside the recordings' own results, not instead of them
+                report.ran.append({"recording": SUMMARY_CSV, "status": "failed", "runs": [], "timing_s": {},
+                                   "error": f"cannot write it: {describe_failure(err, processed)}"})
+    report.wall_s = time.perf_counter() - report.started
+    return report
