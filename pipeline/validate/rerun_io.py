@@ -72,6 +72,7 @@ def save_with_blueprint(rec, path: Path, chunks, application_id: str = "pdr",
     import rerun_bindings as bindings
     from rerun.recording_stream import RecordingStream
 
+    _require_space(path)
     stream = RecordingStream._from_native(bindings.new_blueprint(
         application_id=application_id, make_default=False, make_thread_default=False, default_enabled=True))
     rr.send_chunks(chunks, recording=stream)
@@ -83,6 +84,20 @@ def save_with_blueprint(rec, path: Path, chunks, application_id: str = "pdr",
             stream.log(f"view/{view_id}/ScalarAxis", rrb.archetypes.ScalarAxis(range=y_range))
     bindings.save(path=str(path), default_blueprint=stream.memory_recording().storage,
                   recording=rec.to_native(), write_footer=True)
+
+
+# Free space a recording needs to start: Rerun's file sink blocks for good, instead of failing, when
+# the disk is already full as it opens the file (seen with 0.41 on a full tmpfs).
+MIN_FREE_BYTES = 4 << 20
+
+
+def _require_space(path: Path) -> None:
+    import errno
+    import os
+    import shutil
+
+    if shutil.disk_usage(Path(path).parent).free < MIN_FREE_BYTES:
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
 
 
 def rerun_executable() -> str:
