@@ -169,6 +169,7 @@ def capture_report(cap: Capture) -> dict:
         "rows": {"read": kept_rows + len(cap.quarantined), "kept": sum(len(r.signals) for r in cap.runs),
                  "quarantined": len(cap.quarantined)},
         "quarantined": [q.to_dict() for q in cap.quarantined],
+        "timestamp_prefix": parsed.prefix.to_dict() if parsed.prefix else None,
         "board_resets": len(parsed.segments) - 1 - (1 if parsed.segments[0].header_line is None
                                                     and parsed.header_lines else 0),
         "defects": defects,
