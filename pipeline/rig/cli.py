@@ -8,6 +8,7 @@ from typing import Annotated, Any
 import typer
 
 from pipeline.errors import PdrError
+from pipeline.rig.serial import TERMINAL_STAMPS
 
 app = typer.Typer(help="The virtual rig: synthetic recordings with hidden effects and serial artefacts.",
                   no_args_is_help=True)
@@ -17,6 +18,7 @@ _FLAGS = {"crlf": ("crlf", True), "bom": ("bom", True), "partial": ("partial_fir
           "ide": ("ide_prefix", "classic"), "ide2": ("ide_prefix", "ide2")}
 _COUNTS = {"comments": "comments", "blank": "blank_lines", "garbled": "garbled", "dropped": "dropped"}
 ARTEFACT_HELP = ("crlf, bom, partial, no-header, no-dir, ide (12:34:56.789 -> ), ide2 (18:2:13.521 -> ), "
+                 "terminal=STYLE (another terminal's stamps: " + "|".join(TERMINAL_STAMPS) + "), stamp-digits=N, "
                  "comments=N, blank=N, garbled=N, dropped=N, reset=S (board reset S seconds in), "
                  "reset-gap=S, time=ms|us|s, columns=T,COUNTS,ADC,DIR")
 
@@ -55,6 +57,10 @@ def parse_artefacts(items: list[str]):
                 kw[_COUNTS[word]] = int(value)
             elif word in ("reset", "reset-gap") and eq:
                 kw["reset_after_s" if word == "reset" else "reset_gap_s"] = float(value)
+            elif word == "terminal" and eq:
+                kw["terminal"] = value
+            elif word == "stamp-digits" and eq:
+                kw["stamp_digits"] = int(value)
             elif word == "time" and eq:
                 kw["time_unit"] = value
             elif word == "columns" and eq:
