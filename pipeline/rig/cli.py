@@ -91,10 +91,14 @@ def make(
     noise: Annotated[float, typer.Option(help="Current sensor noise sigma in V (default: one ADC step).")] = 5.0 / 1024,
     zero_v: Annotated[str, typer.Option(help="zero_v written to the TOML: calibrated, auto or nominal.")] = "calibrated",
     artefact: Annotated[list[str], typer.Option(help=f"Serial artefact (repeatable): {ARTEFACT_HELP}.")] = [],
+    randomise: Annotated[int | None, typer.Option(
+        help="Draw the rig's conventions, the capture and the hidden effects from this seed "
+             "(pipeline/rig/randomised.py); only --out and NAME are used besides.")] = None,
 ) -> None:
     """Record one synthetic run of the virtual rig.
 
     Example: pdr rig make hidden_backlash --effect backlash:gap=0.05 --artefact ide2 --artefact crlf --seed 7
+    (or: pdr rig make some_lab --randomise 42)
     """
     from dataclasses import replace
 
@@ -102,6 +106,19 @@ def make(
     from pipeline.rig.recording import RigSetup, check_name, make_recording, write_recording
 
     check_name(name)
+    if randomise is not None:
+        import numpy as np
+
+        from pipeline.rig.randomised import randomised_setup
+
+        draw = randomised_setup(np.random.default_rng(randomise))
+        rec = make_recording(draw.setup)
+        paths = write_recording(rec, out, name)
+        typer.echo(summary_line(name, rec) + (f"; outside the catalogue: {draw.outside}" if draw.outside else ""))
+        typer.echo("  " + ", ".join(f"{k}={v}" for k, v in draw.conventions.items()))
+        for p in paths.values():
+            typer.echo(f"  wrote {p}")
+        return
     cfg = resolve_config([config]) if config is not None else default_config()
     if declare:
         cfg = replace(cfg, effects=(*cfg.effects, *(parse_effect(d, "--declare") for d in declare)))

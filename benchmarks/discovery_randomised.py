@@ -1,0 +1,159 @@
+"""The randomised discovery matrix: does ``pdr discover RAW.csv`` hold on rigs and captures it was not tuned on?
+
+Each recording is drawn by ``pipeline.rig.randomised.randomised_setup`` (a lab's own sample
+period, supply, sensor, encoder, columns, terminal, capture start, resets, lost rows, noise,
+and 0-3 hidden catalogued effects or one outside the catalogue), written as CSV + TOML, and
+handed to the command a user runs, ``pdr discover RAW.csv --json``, in a fresh process; the
+wall time is that whole command (start-up, ingest, derive, discovery, report and .rrd).
+Two recordings run at a time (a process pool of two, one per core).
+
+A recording is right when the named effects are exactly the hidden ones and the verdict is
+``explained``; ``none`` with no name on a clean one; ``unexplained`` with no name outside the
+catalogue.  Parameter errors are |found - true| / |true| for every hidden effect that was named.
+
+    python -m benchmarks.discovery_matrix [--recordings N] [--seed S] [--out FILE]
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from pipeline.model.effects import CATALOGUE
+
+DEFAULT_OUT = Path("benchmarks/results/discovery_randomised.json")
+PDR = Path(sys.executable).with_name("pdr")
+
+
+def expected_verdict(label: str) -> str:
+    return "none" if label == "clean" else "unexplained" if label.startswith("outside:") else "explained"
+
+
+def run_one(index: int, seed: int, work: Path) -> dict:
+    """Draw recording ``index``, write it, run ``pdr discover`` on it; one row of results."""
+    from pipeline.rig.randomised import randomised_setup
+    from pipeline.rig.recording import make_recording, write_recording
+
+    draw = randomised_setup(np.random.default_rng([seed, index]))
+    name = f"r{index:04d}"
+    t0 = time.perf_counter()
+    rec = make_recording(draw.setup)
+    write_recording(rec, work / "raw", name)
+    made_s = time.perf_counter() - t0
+    csv = work / "raw" / f"{name}.csv"
+    t0 = time.perf_counter()
+    proc = subprocess.run([str(PDR), "discover", str(csv), "--json", "--processed", str(work / "processed")],
+                          capture_output=True, text=True, cwd=work)
+    wall = time.perf_counter() - t0
+    row = {"index": index, "label": draw.label, "n_effects": len(draw.effects), "outside": draw.outside,
+           "expected": expected_verdict(draw.label), "make_s": made_s, "discover_wall_s": wall,
+           "samples": len(rec.truth), "conventions": draw.conventions,
+           "truth": {e.name: e.parameters for e in draw.effects}}
+    if proc.returncode != 0:
+        return row | {"verdict": "error", "found": {}, "error": (proc.stderr.strip().splitlines() or ["?"])[-1],
+                      "right": False, "param_err": {}}
+    doc = json.loads(proc.stdout)
+    found = {e["name"]: e["parameters"] for e in doc["effects"]}
+    errors = {}
+    for name_, params in row["truth"].items():
+        if name_ in found:
+            errors[name_] = max(abs(found[name_][k] - v) / abs(v) for k, v in params.items())
+    right = set(found) == set(row["truth"]) and doc["verdict"] == row["expected"]
+    return row | {"verdict": doc["verdict"], "found": found, "right": right, "param_err": errors,
+                  "discover_internal_s": doc.get("seconds")}
+
+
+def _kind(label: str) -> str:
+    if label == "clean" or label.startswith("outside:"):
+        return label
+    return f"{label.count('+') + 1} effect(s)"
+
+
+def summarise(rows: list[dict]) -> dict:
+    """Confusion tables, parameter errors and times, as printed and as written to JSON."""
+    df = pd.DataFrame(rows)
+    df["kind"] = df["label"].map(_kind)
+    verdicts = pd.crosstab(df["kind"], df["verdict"])
+    per_effect = []
+    for name in CATALOGUE:
+        present = df["truth"].map(lambda t: name in t)
+        named = df["found"].map(lambda f: name in f)
+        errs = [r["param_err"][name] for r in rows if name in r["param_err"]]
+        per_effect.append({"effect": name, "hidden_in": int(present.sum()), "named_when_hidden": int((present & named).sum()),
+                           "named_when_absent": int((~present & named).sum()),
+                           "param_err_median": float(np.median(errs)) if errs else None,
+                           "param_err_max": float(np.max(errs)) if errs else None})
+    single = df[df["n_effects"] == 1]
+    first = single.apply(lambda r: next(iter(r["found"]), r["verdict"]), axis=1) if len(single) else pd.Series(dtype=str)
+    confusion = pd.crosstab(single["label"], first) if len(single) else pd.DataFrame()
+    errs = [e for r in rows for e in r["param_err"].values()]
+    no_effect = df[df["label"].eq("clean") | df["label"].str.startswith("outside:")]
+    wall = df["discover_wall_s"]
+    return {
+        "recordings": len(df), "right": int(df["right"].sum()), "right_fraction": float(df["right"].mean()),
+        "right_by_kind": {k: f"{int(g['right'].sum())}/{len(g)}" for k, g in df.groupby("kind")},
+        "effect_named_without_one": int(no_effect["found"].map(bool).sum()), "without_one": len(no_effect),
+        "errors": int((df["verdict"] == "error").sum()),
+        "verdicts_by_kind": verdicts.to_dict(orient="index"),
+        "single_effect_confusion": confusion.to_dict(orient="index"),
+        "per_effect": per_effect,
+        "param_err_median": float(np.median(errs)) if errs else None,
+        "param_err_max": float(np.max(errs)) if errs else None,
+        "param_err_within_20pct": f"{sum(e <= 0.2 for e in errs)}/{len(errs)}",
+        "discover_wall_s": {"median": float(wall.median()), "max": float(wall.max()), "mean": float(wall.mean()),
+                            "over_10s": int((wall > 10).sum()), "over_2s": int((wall > 2).sum())},
+        "load_average_at_end": os.getloadavg(),
+    }
+
+
+def print_summary(s: dict) -> None:
+    pd.set_option("display.width", 250)
+    pd.set_option("display.max_columns", 30)
+    print(f"\nRight: {s['right']} of {s['recordings']} ({100 * s['right_fraction']:.1f} %); by kind: {s['right_by_kind']}")
+    print(f"Effect named on a recording without a catalogued one: {s['effect_named_without_one']} of {s['without_one']}; "
+          f"discover failed: {s['errors']}")
+    print("\nVerdicts (rows: what is hidden):")
+    print(pd.DataFrame(s["verdicts_by_kind"]).T.fillna(0).astype(int))
+    if s["single_effect_confusion"]:
+        print("\nConfusion matrix of single-effect recordings (rows: hidden; columns: first effect named, or the verdict):")
+        print(pd.DataFrame(s["single_effect_confusion"]).T.fillna(0).astype(int))
+    print("\nPer effect (over every recording):")
+    print(pd.DataFrame(s["per_effect"]).set_index("effect").round(4))
+    print(f"\nParameter error where named: median {s['param_err_median']}, max {s['param_err_max']} "
+          f"(within 20 %: {s['param_err_within_20pct']})")
+    w = s["discover_wall_s"]
+    print(f"pdr discover RAW.csv, wall per recording (two at a time on this machine, load average at the end "
+          f"{s['load_average_at_end'][0]:.1f}): median {w['median']:.2f} s, max {w['max']:.2f} s, mean {w['mean']:.2f} s; "
+          f"over 2 s: {w['over_2s']}, over 10 s: {w['over_10s']}")
+
+
+def main(recordings: int, seed: int, out: Path, workers: int = 2) -> dict:
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="pdr-bench-randomised-") as tmp, \
+            ProcessPoolExecutor(max_workers=workers) as pool:
+        work = Path(tmp)
+        futures = [pool.submit(run_one, i, seed, work) for i in range(recordings)]
+        for fut in futures:
+            r = fut.result()
+            rows.append(r)
+            print(f"{'ok ' if r['right'] else 'BAD'} {r['index']:4d} {r['label']:60s} -> {r['verdict']:11s} "
+                  f"{'+'.join(r['found']) or '-':50s} err {max(r['param_err'].values(), default=float('nan')):.3f} "
+                  f"{r['samples']:6d} samples {r['discover_wall_s']:.2f} s"
+                  + (f"  [{r['error']}]" if r.get("error") else ""), flush=True)
+    summary = summarise(rows)
+    print_summary(summary)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    from pipeline.io.atomic import write_json
+
+    write_json(out, {"seed": seed, "summary": summary, "recordings": rows})
+    print(f"\nwrote {out}")
+    return summary
