@@ -60,7 +60,8 @@ DIALECTS: tuple[Dialect, ...] = (
 )
 BY_NAME = {d.name: d for d in DIALECTS}
 PUTTY_BANNER = r"^=~=~=~=~=~=~=~=~=~=~=~= PuTTY log (?P<date>[0-9]{4}\.[0-9]{2}\.[0-9]{2}) (?P<time>[0-9]{2}:[0-9]{2}:[0-9]{2}) =~=~=~=~=~=~=~=~=~=~=~=$"
-_DATA_START = r"^-?[0-9]"            # what a data row starts with once its stamp is gone
+_DATA_START = re.compile(r"^-?[0-9]")   # what a data row starts with once its stamp is gone
+SAMPLE = 4096                           # lines the dialect is chosen on
 
 
 @dataclass(frozen=True)
@@ -85,16 +86,21 @@ class PrefixInfo:
 
 
 def detect_dialect(text: pa.Array) -> tuple[Dialect | None, np.ndarray]:
-    """The dialect matching the most lines, and its per-line mask."""
-    best, best_mask, best_n = None, None, 0
+    """The dialect matching the most lines of an even sample of ``SAMPLE`` lines, and its mask over every line.
+
+    The sample keeps detection to one pass over a large capture (stamps that start
+    after a user switched them on are still found unless they cover under 1/SAMPLE of it).
+    """
+    n = len(text)
+    sample = text if n <= SAMPLE else text.take(pa.array(np.linspace(0, n - 1, SAMPLE).astype(np.int64)))
+    best, best_n = None, 0
     for d in DIALECTS:
-        mask = pc.match_substring_regex(text, d.pattern)
-        n = int(pc.sum(mask).as_py() or 0)
-        if n > best_n:
-            best, best_mask, best_n = d, mask, n
+        hits = int(pc.sum(pc.match_substring_regex(sample, d.pattern)).as_py() or 0)
+        if hits > best_n:
+            best, best_n = d, hits
     if best is None:
-        return None, np.zeros(len(text), dtype=bool)
-    return best, best_mask.to_numpy(zero_copy_only=False)
+        return None, np.zeros(n, dtype=bool)
+    return best, pc.match_substring_regex(text, best.pattern).to_numpy(zero_copy_only=False)
 
 
 def wall_clock(match: re.Match, dialect: str) -> str:
@@ -116,8 +122,11 @@ def wall_clock(match: re.Match, dialect: str) -> str:
 
 def strip_prefixes(text: pa.Array, trim: str) -> tuple[pa.Array, PrefixInfo | None]:
     """Lines with the common stamp removed (and a PuTTY banner made a '#' comment), and what the stamps said."""
-    banner_mask = pc.match_substring_regex(text, PUTTY_BANNER)
+    banner_mask = pc.starts_with(text, "=~=~=")            # cheaper than the regex on every line
     banner_idx = np.flatnonzero(banner_mask.to_numpy(zero_copy_only=False))
+    if len(banner_idx):
+        banner_mask = pc.and_(banner_mask, pc.match_substring_regex(text, PUTTY_BANNER))
+        banner_idx = np.flatnonzero(banner_mask.to_numpy(zero_copy_only=False))
     if len(banner_idx):
         text = pc.if_else(banner_mask, pc.binary_join_element_wise(pa.scalar("#", text.type), text, pa.scalar("", text.type)), text)
     dialect, mask = detect_dialect(text)
@@ -130,8 +139,8 @@ def strip_prefixes(text: pa.Array, trim: str) -> tuple[pa.Array, PrefixInfo | No
         return text, PrefixInfo("putty-log", 0, i + 1, stamp, wall_clock(m, "date-time"), 0, banner=m.group(0),
                                 banner_line=i + 1)
     stripped = pc.utf8_trim(pc.replace_substring_regex(text, dialect.pattern, ""), characters=trim)
-    data = np.flatnonzero(mask & pc.match_substring_regex(stripped, _DATA_START).to_numpy(zero_copy_only=False))
-    first = int(data[0]) if len(data) else int(np.flatnonzero(mask)[0])
+    stamped = np.flatnonzero(mask)
+    first = next((int(i) for i in stamped[:1000] if _DATA_START.match(stripped[int(i)].as_py())), int(stamped[0]))
     m = re.match(dialect.pattern, text[first].as_py())
     stamp = m.group(0).strip(" \t->|")
     banner = re.match(PUTTY_BANNER, text[int(banner_idx[0])].as_py()[1:]).group(0) if len(banner_idx) else None
