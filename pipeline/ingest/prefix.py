@@ -19,7 +19,7 @@ stamp the report needs.  Fractions of a second have any number of digits.
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import datetime, timezone
 
 import numpy as np
@@ -76,6 +76,14 @@ class PrefixInfo:
     fraction_digits: int
     banner: str | None = None       # PuTTY's log banner, kept as a comment line
     banner_line: int | None = None
+    stamped_lines: pa.Array | None = field(default=None, compare=False, repr=False)   # the lines as written
+
+    def wall_clock_at(self, line: int) -> str | None:
+        """The wall clock a line's stamp says (1-based line), or None when it carries none."""
+        if self.stamped_lines is None or self.dialect not in BY_NAME:
+            return None
+        m = re.match(BY_NAME[self.dialect].pattern, self.stamped_lines[line - 1].as_py())
+        return wall_clock(m, self.dialect) if m else None
 
     def to_dict(self) -> dict:
         return {"dialect": self.dialect, "example": BY_NAME[self.dialect].example if self.dialect in BY_NAME
@@ -146,5 +154,5 @@ def strip_prefixes(text: pa.Array, trim: str) -> tuple[pa.Array, PrefixInfo | No
     banner = re.match(PUTTY_BANNER, text[int(banner_idx[0])].as_py()[1:]).group(0) if len(banner_idx) else None
     info = PrefixInfo(dialect.name, int(mask.sum()), first + 1, stamp, wall_clock(m, dialect.name),
                       len(m["frac"] or ""), banner=banner,
-                      banner_line=int(banner_idx[0]) + 1 if len(banner_idx) else None)
+                      banner_line=int(banner_idx[0]) + 1 if len(banner_idx) else None, stamped_lines=text)
     return stripped, info

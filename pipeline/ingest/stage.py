@@ -145,6 +145,7 @@ def capture_report(cap: Capture) -> dict:
             continue
         zero = zeros.get(seg.index)
         entry |= {"first_line": int(seg.line[0]), "last_line": int(seg.line[-1]), "counter_wraps": wraps,
+                  "wall_clock_start": parsed.prefix.wall_clock_at(int(seg.line[0])) if parsed.prefix else None,
                   "timing": timing_stats(t, cfg.columns.time_unit, seg.line, cfg.controller.period_s),
                   "current_zero": zero.to_dict() if zero else None,
                   "adc_saturation": saturation(seg.values["adc"], cfg.current_sensor.adc_steps) if zero else None,

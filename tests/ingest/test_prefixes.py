@@ -70,6 +70,19 @@ def test_prefixed_capture_gives_the_plain_signals_bit_for_bit(tmp_path, plain, k
     assert wall + 0.004 - resolution - 1e-3 <= local <= wall + 0.006 + 1e-3
 
 
+def test_each_segment_keeps_the_wall_clock_of_its_first_sample(tmp_path):
+    art = Artefacts(terminal="bracketed", stamp_digits=6, reset_after_s=2.0, reset_gap_s=5.0)
+    rec, _, report = _signals_and_report(tmp_path, "reset", art)
+    starts = [seg["wall_clock_start"] for seg in report["segments"]]
+    assert starts[0] == report["timestamp_prefix"]["wall_clock_start"]
+    first_of_second = rec.truth[rec.truth["segment"] == 2]["line"].iloc[0]
+    line = rec.csv_bytes.decode().splitlines()[first_of_second - 1]
+    assert starts[1] == line[1:27].replace(" ", "T")      # '[2026-11-25 12:34:56.123456] ...'
+    elapsed = (datetime.fromisoformat(starts[1]) - datetime.fromisoformat(starts[0])).total_seconds()
+    true = rec.truth.groupby("segment")["t_s"].first()          # the true instants, the reset gap included
+    assert abs(elapsed - (true[2] - true[1])) < 0.003           # the PC receives each line 4-6 ms after its sample
+
+
 def test_plain_capture_has_no_prefix():
     _, report = ingest(CLEAN)
     assert report["timestamp_prefix"] is None
