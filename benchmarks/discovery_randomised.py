@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import json
 import os
+import resource
 import subprocess
 import sys
 import tempfile
@@ -50,12 +51,15 @@ def run_one(index: int, seed: int, work: Path) -> dict:
     write_recording(rec, work / "raw", name)
     made_s = time.perf_counter() - t0
     csv = work / "raw" / f"{name}.csv"
-    t0 = time.perf_counter()
+    t0, before = time.perf_counter(), resource.getrusage(resource.RUSAGE_CHILDREN)
     proc = subprocess.run([str(PDR), "discover", str(csv), "--json", "--processed", str(work / "processed")],
                           capture_output=True, text=True, cwd=work)
     wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     row = {"index": index, "label": draw.label, "n_effects": len(draw.effects), "outside": draw.outside,
            "expected": expected_verdict(draw.label), "make_s": made_s, "discover_wall_s": wall,
+           "discover_cpu_s": cpu,
            "samples": len(rec.truth), "conventions": draw.conventions,
            "truth": {e.name: e.parameters for e in draw.effects}}
     if proc.returncode != 0:
@@ -97,7 +101,7 @@ def summarise(rows: list[dict]) -> dict:
     confusion = pd.crosstab(single["label"], first) if len(single) else pd.DataFrame()
     errs = [e for r in rows for e in r["param_err"].values()]
     no_effect = df[df["label"].eq("clean") | df["label"].str.startswith("outside:")]
-    wall = df["discover_wall_s"]
+    wall, cpu = df["discover_wall_s"], df["discover_cpu_s"]
     return {
         "recordings": len(df), "right": int(df["right"].sum()), "right_fraction": float(df["right"].mean()),
         "right_by_kind": {k: f"{int(g['right'].sum())}/{len(g)}" for k, g in df.groupby("kind")},
@@ -111,6 +115,7 @@ def summarise(rows: list[dict]) -> dict:
         "param_err_within_20pct": f"{sum(e <= 0.2 for e in errs)}/{len(errs)}",
         "discover_wall_s": {"median": float(wall.median()), "max": float(wall.max()), "mean": float(wall.mean()),
                             "over_10s": int((wall > 10).sum()), "over_2s": int((wall > 2).sum())},
+        "discover_cpu_s": {"median": float(cpu.median()), "max": float(cpu.max()), "mean": float(cpu.mean())},
         "load_average_at_end": os.getloadavg(),
     }
 
@@ -134,6 +139,9 @@ def print_summary(s: dict) -> None:
     print(f"pdr discover RAW.csv, wall per recording (two at a time on this machine, load average at the end "
           f"{s['load_average_at_end'][0]:.1f}): median {w['median']:.2f} s, max {w['max']:.2f} s, mean {w['mean']:.2f} s; "
           f"over 2 s: {w['over_2s']}, over 10 s: {w['over_10s']}")
+    c = s["discover_cpu_s"]
+    print(f"  CPU of that command (user + system, its own threads summed; blind to the load): median {c['median']:.2f} s, "
+          f"max {c['max']:.2f} s, mean {c['mean']:.2f} s")
 
 
 def main(recordings: int, seed: int, out: Path, workers: int = 2) -> dict:
@@ -147,7 +155,7 @@ def main(recordings: int, seed: int, out: Path, workers: int = 2) -> dict:
             rows.append(r)
             print(f"{'ok ' if r['right'] else 'BAD'} {r['index']:4d} {r['label']:60s} -> {r['verdict']:11s} "
                   f"{'+'.join(r['found']) or '-':50s} err {max(r['param_err'].values(), default=float('nan')):.3f} "
-                  f"{r['samples']:6d} samples {r['discover_wall_s']:.2f} s"
+                  f"{r['samples']:6d} samples {r['discover_wall_s']:.2f} s wall {r['discover_cpu_s']:.2f} s CPU"
                   + (f"  [{r['error']}]" if r.get("error") else ""), flush=True)
     summary = summarise(rows)
     print_summary(summary)
