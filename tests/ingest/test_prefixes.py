@@ -135,7 +135,7 @@ data_rows = st.lists(st.tuples(st.integers(0, 2**32 - 1), st.integers(-(2**31), 
                                st.sampled_from([-1, 0, 1])), min_size=1, max_size=12)
 
 
-@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(form=st.sampled_from(sorted(FORM_DIALECT)), when=moments, digits=st.integers(0, 9), rows=data_rows,
        header=st.booleans(), step_ms=st.integers(1, 1000))
 def test_stamp_is_stripped_to_the_line_and_read_back(form, when, digits, rows, header, step_ms):
@@ -153,7 +153,7 @@ def test_stamp_is_stripped_to_the_line_and_read_back(form, when, digits, rows, h
     assert info.wall_clock_start == wall and info.fraction_digits == digits
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=60, deadline=None)
 @given(rows=data_rows, header=st.booleans())
 def test_unstamped_lines_are_never_changed(rows, header):
     plain = (["t_ms,counts,adc,dir"] if header else []) + [",".join(map(str, r)) for r in rows]
