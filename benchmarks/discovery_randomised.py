@@ -10,6 +10,8 @@ Two recordings run at a time (a process pool of two, one per core).
 A recording is right when the named effects are exactly the hidden ones and the verdict is
 ``explained``; ``none`` with no name on a clean one; ``unexplained`` with no name outside the
 catalogue.  Parameter errors are |found - true| / |true| for every hidden effect that was named.
+Each finished recording is appended to ``<out>.partial.jsonl``: a run stopped part-way is
+finished, not redone, by running the same command again.
 
     python -m benchmarks.discovery_matrix [--recordings N] [--seed S] [--out FILE]
 """
@@ -144,14 +146,29 @@ def print_summary(s: dict) -> None:
           f"max {c['max']:.2f} s, mean {c['mean']:.2f} s")
 
 
+def _done_rows(partial: Path, seed: int) -> dict[int, dict]:
+    """Rows a stopped run of the same seed already finished (one JSON object per line)."""
+    if not partial.is_file():
+        return {}
+    rows = [json.loads(line) for line in partial.read_text().splitlines() if line.strip()]
+    return {r["index"]: r for r in rows if r.get("seed") == seed}
+
+
 def main(recordings: int, seed: int, out: Path, workers: int = 2) -> dict:
+    """Run (or finish: rows already in ``<out>.partial.jsonl`` for this seed are kept) and summarise."""
+    out.parent.mkdir(parents=True, exist_ok=True)
+    partial = out.with_name(out.name + ".partial.jsonl")
+    done = _done_rows(partial, seed)
     rows = []
     with tempfile.TemporaryDirectory(prefix="pdr-bench-randomised-") as tmp, \
-            ProcessPoolExecutor(max_workers=workers) as pool:
+            ProcessPoolExecutor(max_workers=workers) as pool, partial.open("a") as log:
         work = Path(tmp)
-        futures = [pool.submit(run_one, i, seed, work) for i in range(recordings)]
-        for fut in futures:
-            r = fut.result()
+        futures = {i: pool.submit(run_one, i, seed, work) for i in range(recordings) if i not in done}
+        for i in range(recordings):
+            r = done[i] if i in done else futures[i].result() | {"seed": seed}
+            if i not in done:
+                log.write(json.dumps(r, sort_keys=True) + "\n")
+                log.flush()
             rows.append(r)
             print(f"{'ok ' if r['right'] else 'BAD'} {r['index']:4d} {r['label']:60s} -> {r['verdict']:11s} "
                   f"{'+'.join(r['found']) or '-':50s} err {max(r['param_err'].values(), default=float('nan')):.3f} "
@@ -159,9 +176,9 @@ def main(recordings: int, seed: int, out: Path, workers: int = 2) -> dict:
                   + (f"  [{r['error']}]" if r.get("error") else ""), flush=True)
     summary = summarise(rows)
     print_summary(summary)
-    out.parent.mkdir(parents=True, exist_ok=True)
     from pipeline.io.atomic import write_json
 
     write_json(out, {"seed": seed, "summary": summary, "recordings": rows})
+    partial.unlink()
     print(f"\nwrote {out}")
     return summary
