@@ -12,7 +12,7 @@ logged command, and an effect outside the catalogue (a constant torque from
 unequal racks, injected with a custom plant).  Prints a confusion matrix, the
 parameter errors, the MSE reduction and the time per recording.
 
-    python -m benchmarks.discovery_matrix [--recordings N] [--seed S] [--out FILE]
+    python -m benchmarks.discovery_matrix [--recordings N] [--seed S] [--out FILE] [--partial-summary]
     python -m benchmarks.discovery_matrix --shipped [--seeds N] [--quick]
 """
 
@@ -163,10 +163,16 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=15, help="randomised: the draw's seed")
     ap.add_argument("--workers", type=int, default=2, help="randomised: recordings run at a time")
     ap.add_argument("--out", type=Path, default=None, help="randomised: the JSON results file")
+    ap.add_argument("--partial-summary", action="store_true",
+                    help="randomised: summarise what a stopped run finished, run nothing")
     args = ap.parse_args()
     if not args.shipped:
         from benchmarks import discovery_randomised
 
+        if args.partial_summary:
+            discovery_randomised.summarise_partial(args.seed, args.out or discovery_randomised.DEFAULT_OUT,
+                                                   args.recordings)
+            return
         discovery_randomised.main(args.recordings, args.seed, args.out or discovery_randomised.DEFAULT_OUT,
                                   args.workers)
         return

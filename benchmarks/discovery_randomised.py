@@ -13,7 +13,7 @@ catalogue.  Parameter errors are |found - true| / |true| for every hidden effect
 Each finished recording is appended to ``<out>.partial.jsonl``: a run stopped part-way is
 finished, not redone, by running the same command again.
 
-    python -m benchmarks.discovery_matrix [--recordings N] [--seed S] [--out FILE]
+    python -m benchmarks.discovery_matrix [--recordings N] [--seed S] [--out FILE] [--partial-summary]
 """
 
 from __future__ import annotations
@@ -154,6 +154,22 @@ def _done_rows(partial: Path, seed: int) -> dict[int, dict]:
     return {r["index"]: r for r in rows if r.get("seed") == seed}
 
 
+def summarise_partial(seed: int, out: Path, wanted: int) -> dict:
+    """The summary of what a stopped run finished (its partial file is kept, so the run can still be finished)."""
+    partial = out.with_name(out.name + ".partial.jsonl")
+    rows = [r for _, r in sorted(_done_rows(partial, seed).items())]
+    if not rows:
+        raise SystemExit(f"{partial}: no finished recording for seed {seed}")
+    summary = summarise(rows)
+    print(f"PARTIAL: {len(rows)} of {wanted} recordings finished")
+    print_summary(summary)
+    from pipeline.io.atomic import write_json
+
+    write_json(out, {"seed": seed, "complete": False, "wanted": wanted, "summary": summary, "recordings": rows})
+    print(f"\nwrote {out}")
+    return summary
+
+
 def main(recordings: int, seed: int, out: Path, workers: int = 2) -> dict:
     """Run (or finish: rows already in ``<out>.partial.jsonl`` for this seed are kept) and summarise."""
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -178,7 +194,7 @@ def main(recordings: int, seed: int, out: Path, workers: int = 2) -> dict:
     print_summary(summary)
     from pipeline.io.atomic import write_json
 
-    write_json(out, {"seed": seed, "summary": summary, "recordings": rows})
+    write_json(out, {"seed": seed, "complete": True, "wanted": recordings, "summary": summary, "recordings": rows})
     partial.unlink()
     print(f"\nwrote {out}")
     return summary
