@@ -59,7 +59,9 @@ DIALECTS: tuple[Dialect, ...] = (
             "'12:30:00.123 ' (CoolTerm's time stamp, ts '%.T', ts -s / -i elapsed time)"),
 )
 BY_NAME = {d.name: d for d in DIALECTS}
-PUTTY_BANNER = r"^=~=~=~=~=~=~=~=~=~=~=~= PuTTY log (?P<date>[0-9]{4}\.[0-9]{2}\.[0-9]{2}) (?P<time>[0-9]{2}:[0-9]{2}:[0-9]{2}) =~=~=~=~=~=~=~=~=~=~=~=$"
+_PUTTY_RULE = "=~" * 11 + "="
+PUTTY_BANNER = (rf"^{_PUTTY_RULE} PuTTY log (?P<date>[0-9]{{4}}\.[0-9]{{2}}\.[0-9]{{2}}) "
+                rf"(?P<time>[0-9]{{2}}:[0-9]{{2}}:[0-9]{{2}}) {_PUTTY_RULE}$")
 _DATA_START = re.compile(r"^-?[0-9]")   # what a data row starts with once its stamp is gone
 SAMPLE = 4096                           # lines the dialect is chosen on
 
@@ -136,7 +138,8 @@ def strip_prefixes(text: pa.Array, trim: str) -> tuple[pa.Array, PrefixInfo | No
         banner_mask = pc.and_(banner_mask, pc.match_substring_regex(text, PUTTY_BANNER))
         banner_idx = np.flatnonzero(banner_mask.to_numpy(zero_copy_only=False))
     if len(banner_idx):
-        text = pc.if_else(banner_mask, pc.binary_join_element_wise(pa.scalar("#", text.type), text, pa.scalar("", text.type)), text)
+        hashed = pc.binary_join_element_wise(pa.scalar("#", text.type), text, pa.scalar("", text.type))
+        text = pc.if_else(banner_mask, hashed, text)
     dialect, mask = detect_dialect(text)
     if dialect is None:
         if not len(banner_idx):
