@@ -5,8 +5,10 @@
 ``CATALOGUE`` or one effect outside it.  Discovery tuned on the paper's rig is
 only worth something if it holds on these (issue 15).  The drawer walks
 ``CATALOGUE`` itself, so an effect added there is drawn with no change here;
-``MAGNITUDES`` gives the range of each effect's parameter (an effect missing
-from it is drawn from the low fifth of its ``BOUNDS``).
+``MAGNITUDES`` gives the range of each effect's parameter; a parameter missing
+from it is drawn around its plug-in's ``typical`` value (``Param``: 0.5-1.5 times
+its distance from ``absent``, on either side when it is signed), or, for an
+effect class without ``PARAMS``, from the low fifth of its ``BOUNDS``.
 
 Ranges, and why:
 
@@ -78,8 +80,20 @@ def _log_uniform(rng: np.random.Generator, lo: float, hi: float) -> float:
     return float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
 
 
+def _unlisted(cls: type[Effect], key: str, rng: np.random.Generator) -> float:
+    """A parameter ``MAGNITUDES`` does not list: around the plug-in's typical value, else low in its bounds."""
+    param = next((p for p in getattr(cls, "PARAMS", ()) if p.name == key), None)
+    lo, hi = cls.BOUNDS[key]
+    if param is None:
+        return float(rng.uniform(lo + 0.05 * (hi - lo), lo + 0.2 * (hi - lo)))
+    step = (param.typical - param.absent) * _log_uniform(rng, 0.5, 1.5)
+    if param.signed and rng.random() < 0.5:
+        step = -step
+    return float(np.clip(param.absent + step, lo, hi))
+
+
 def draw_effect(name: str, rng: np.random.Generator) -> Effect:
-    """One catalogued effect with its parameters drawn from ``MAGNITUDES`` (or the low fifth of its BOUNDS)."""
+    """One catalogued effect with its parameters drawn from ``MAGNITUDES`` (or by ``_unlisted``)."""
     cls = CATALOGUE[name]
     params = {}
     for key in cls.UNITS:
@@ -90,8 +104,7 @@ def draw_effect(name: str, rng: np.random.Generator) -> Effect:
             if key in SHRINKS and rng.random() < 0.5:
                 value = 1.0 / value
         else:
-            lo, hi = cls.BOUNDS[key]
-            value = float(rng.uniform(lo + 0.05 * (hi - lo), lo + 0.2 * (hi - lo)))
+            value = _unlisted(cls, key, rng)
         params[key] = value
     return make_effect(name, params, where="randomised")
 

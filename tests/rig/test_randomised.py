@@ -67,6 +67,23 @@ def test_draws_cover_every_convention_and_every_catalogued_effect(draws):
     assert len(opened_mid_motion) > N_DRAWS / 2
 
 
+def test_an_effect_the_table_does_not_list_is_drawn_around_its_typical_value():
+    """A new catalogue entry needs no change here: its plug-in's Param (typical, absent, signed) sets the range."""
+    from types import SimpleNamespace
+
+    from pipeline.rig.randomised import _unlisted
+
+    param = SimpleNamespace(name="Tz", absent=0.0, typical=2e-3, signed=True)
+    plugin = SimpleNamespace(PARAMS=(param,), BOUNDS={"Tz": (-1e-2, 1e-2)})
+    rng = np.random.default_rng(1)
+    values = np.array([_unlisted(plugin, "Tz", rng) for _ in range(200)])
+    assert np.all((np.abs(values) >= 1e-3 - 1e-12) & (np.abs(values) <= 3e-3 + 1e-12))
+    assert (values > 0).any() and (values < 0).any()
+    one_sided = SimpleNamespace(PARAMS=(SimpleNamespace(name="g", absent=1.0, typical=1.5, signed=False),),
+                                BOUNDS={"g": (1.0, 5.0)})
+    assert all(1.25 <= _unlisted(one_sided, "g", rng) <= 1.75 for _ in range(50))
+
+
 def _short(setup: RigSetup) -> RigSetup:
     """The draw's conventions on a run of at most 12 s (a reset stays inside it)."""
     art = setup.artefacts
