@@ -162,6 +162,8 @@ def main() -> None:
     ap.add_argument("--recordings", type=int, default=300, help="randomised: how many recordings to draw")
     ap.add_argument("--seed", type=int, default=15, help="randomised: the draw's seed")
     ap.add_argument("--workers", type=int, default=2, help="randomised: recordings run at a time")
+    ap.add_argument("--timed-every", type=int, default=1,
+                    help="randomised: run the command itself on every K-th recording (the others in-process)")
     ap.add_argument("--out", type=Path, default=None, help="randomised: the JSON results file")
     ap.add_argument("--partial-summary", action="store_true",
                     help="randomised: summarise what a stopped run finished, run nothing")
@@ -174,7 +176,7 @@ def main() -> None:
                                                    args.recordings)
             return
         discovery_randomised.main(args.recordings, args.seed, args.out or discovery_randomised.DEFAULT_OUT,
-                                  args.workers)
+                                  args.workers, args.timed_every)
         return
     rows = []
     with tempfile.TemporaryDirectory(prefix="pdr-bench-discovery-") as tmp:
