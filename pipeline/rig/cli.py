@@ -91,14 +91,10 @@ def make(
     noise: Annotated[float, typer.Option(help="Current sensor noise sigma in V (default: one ADC step).")] = 5.0 / 1024,
     zero_v: Annotated[str, typer.Option(help="zero_v written to the TOML: calibrated, auto or nominal.")] = "calibrated",
     artefact: Annotated[list[str], typer.Option(help=f"Serial artefact (repeatable): {ARTEFACT_HELP}.")] = [],
-    randomise: Annotated[int | None, typer.Option(
-        help="Draw the rig's conventions, the capture and the hidden effects from this seed "
-             "(pipeline/rig/randomised.py); only --out and NAME are used besides.")] = None,
 ) -> None:
     """Record one synthetic run of the virtual rig.
 
     Example: pdr rig make hidden_backlash --effect backlash:gap=0.05 --artefact ide2 --artefact crlf --seed 7
-    (or: pdr rig make some_lab --randomise 42)
     """
     from dataclasses import replace
 
@@ -106,19 +102,6 @@ def make(
     from pipeline.rig.recording import RigSetup, check_name, make_recording, write_recording
 
     check_name(name)
-    if randomise is not None:
-        import numpy as np
-
-        from pipeline.rig.randomised import randomised_setup
-
-        draw = randomised_setup(np.random.default_rng(randomise))
-        rec = make_recording(draw.setup)
-        paths = write_recording(rec, out, name)
-        typer.echo(summary_line(name, rec) + (f"; outside the catalogue: {draw.outside}" if draw.outside else ""))
-        typer.echo("  " + ", ".join(f"{k}={v}" for k, v in draw.conventions.items()))
-        for p in paths.values():
-            typer.echo(f"  wrote {p}")
-        return
     cfg = resolve_config([config]) if config is not None else default_config()
     if declare:
         cfg = replace(cfg, effects=(*cfg.effects, *(parse_effect(d, "--declare") for d in declare)))
@@ -172,3 +155,29 @@ def summary_line(name: str, rec) -> str:
     kinds = [k for k, v in meta["artefacts"]["requested"].items() if v != defaults[k] and k != "reset_gap_s"]
     return (f"{name}: {len(t)} samples in {len(meta['segments'])} segment(s), {switches} switches, "
             f"{meta['n_lines']} lines; hidden effects: {hidden}; artefacts: {', '.join(kinds) or 'none'}")
+
+
+@app.command("randomise")
+def randomise(
+    name: Annotated[str, typer.Argument(help="Recording name: writes NAME.csv, NAME.toml, truth/NAME.truth.*")],
+    seed: Annotated[int, typer.Option(help="The draw's seed: same seed, same lab, same bytes.")] = 0,
+    out: Annotated[Path, typer.Option(help="Folder to write into.")] = Path("raw"),
+) -> None:
+    """Record one run of a lab drawn at random: its rig's conventions, its capture and its hidden effects
+    (pipeline/rig/randomised.py; the truth JSON says what was drawn).
+
+    Example: pdr rig randomise some_lab --seed 42
+    """
+    import numpy as np
+
+    from pipeline.rig.randomised import randomised_setup
+    from pipeline.rig.recording import check_name, make_recording, write_recording
+
+    check_name(name)
+    draw = randomised_setup(np.random.default_rng(seed))
+    rec = make_recording(draw.setup)
+    paths = write_recording(rec, out, name)
+    typer.echo(summary_line(name, rec) + (f"; outside the catalogue: {draw.outside}" if draw.outside else ""))
+    typer.echo("  " + ", ".join(f"{k}={v}" for k, v in draw.conventions.items()))
+    for p in paths.values():
+        typer.echo(f"  wrote {p}")

@@ -48,15 +48,14 @@ from __future__ import annotations
 
 import json
 import re
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
 
 from pipeline.config import RigConfig, default_config
-from pipeline.model.params import ModelParams
 from pipeline.errors import PdrError
 from pipeline.model.effects import Effect, PlantSpec
 from pipeline.rig import sensors
@@ -69,6 +68,9 @@ _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
 # Integration tolerances for recordings: errors of a few 1e-9 rad, a millionth of an encoder
 # count, at 2/3 of the cost of the reference defaults (1e-10 / 1e-12).
 _TOL = {"rtol": 1e-9, "atol": 1e-11}
+
+if TYPE_CHECKING:
+    from pipeline.model.params import ModelParams
 
 
 @dataclass(frozen=True)
@@ -102,6 +104,8 @@ class RigSetup:
 
     def plant(self) -> PlantSpec:
         """What the virtual rig really is: the believed config plus the hidden effects (on its true [model])."""
+        from dataclasses import replace
+
         config = self.config if self.plant_model is None else replace(self.config, model=self.plant_model)
         return config.plant_spec(tuple(self.effects))
 

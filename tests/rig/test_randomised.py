@@ -31,6 +31,24 @@ def test_same_seed_same_draws():
     assert a == b
 
 
+def test_pdr_rig_randomise_writes_the_draw_of_its_seed(tmp_path, monkeypatch):
+    from typer.testing import CliRunner
+
+    from pipeline.cli import app
+    from pipeline.rig import randomised
+
+    short = randomised.randomised_setup
+    monkeypatch.setattr(randomised, "randomised_setup",
+                        lambda rng: (d := short(rng)) and replace(d, setup=_short(d.setup)))
+    res = CliRunner().invoke(app, ["rig", "randomise", "lab", "--seed", "42", "--out", str(tmp_path)])
+    assert res.exit_code == 0, res.output
+    draw = randomised.randomised_setup(np.random.default_rng(42))
+    assert (tmp_path / "lab.csv").read_bytes() == make_recording(draw.setup).csv_bytes
+    assert f"period_s={draw.conventions['period_s']}" in res.output
+    bad = CliRunner().invoke(app, ["rig", "randomise", "no/name", "--out", str(tmp_path)])
+    assert bad.exit_code != 0 and "Traceback" not in bad.output
+
+
 def test_draws_stay_in_the_declared_ranges(draws):
     for d in draws:
         s, cfg = d.setup, d.setup.config
