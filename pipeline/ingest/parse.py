@@ -23,6 +23,7 @@ from pipeline.ingest.prefix import BY_NAME, PrefixInfo, strip_prefixes
 
 BOM = b"\xef\xbb\xbf"
 TRIM = " \t\r\n"
+IDE_PREFIX = BY_NAME["arduino-ide"].pattern        # the Arduino IDE monitor's stamp; every terminal's: prefix.py
 INT_RE = r"-?[0-9]{1,18}"
 TIME_RE = r"-?[0-9]{1,15}(\.[0-9]{1,9})?"
 LOGICAL = ("t_raw", "counts", "adc", "dir")        # raw columns in INTERFACE.md order

@@ -130,6 +130,22 @@ def wall_clock(match: re.Match, dialect: str) -> str:
     return time
 
 
+_COMPILED = tuple((d.name, re.compile(d.pattern)) for d in DIALECTS)
+
+
+def strip_stamp(line: str) -> tuple[str, str | None]:
+    """One trimmed line without its terminal stamp, and the dialect that matched (the first in ``DIALECTS``).
+
+    For readers that see a line at a time (a live view of a capture); a whole file is read by
+    ``strip_prefixes``, which picks one dialect for all its lines.
+    """
+    for name, pattern in _COMPILED:
+        m = pattern.match(line)
+        if m:
+            return line[m.end():].strip(" \t\r\n"), name
+    return line, None
+
+
 def strip_prefixes(text: pa.Array, trim: str) -> tuple[pa.Array, PrefixInfo | None]:
     """Lines with the common stamp removed (and a PuTTY banner made a '#' comment), and what the stamps said."""
     banner_mask = pc.starts_with(text, "=~=~=")            # cheaper than the regex on every line

@@ -12,7 +12,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from pipeline.ingest.prefix import DIALECTS, strip_prefixes
+from pipeline.ingest.prefix import DIALECTS, strip_prefixes, strip_stamp
 from pipeline.ingest.stage import ingest_recording
 from pipeline.rig.recording import RigSetup, make_recording
 from pipeline.rig.serial import TERMINAL_STAMPS, Artefacts
@@ -149,6 +149,7 @@ def test_stamp_is_stripped_to_the_line_and_read_back(form, when, digits, rows, h
     out, info = strip_prefixes(pa.array(stamped, pa.large_string()), TRIM)
     assert out.to_pylist() == plain
     assert info is not None and info.dialect == FORM_DIALECT[form]
+    assert [strip_stamp(line) for line in stamped] == [(line, FORM_DIALECT[form]) for line in plain]
     assert info.lines == len(plain) and info.first_line == (2 if header else 1)
     assert info.wall_clock_start == wall and info.fraction_digits == digits
 
@@ -159,6 +160,16 @@ def test_unstamped_lines_are_never_changed(rows, header):
     plain = (["t_ms,counts,adc,dir"] if header else []) + [",".join(map(str, r)) for r in rows]
     out, info = strip_prefixes(pa.array(plain, pa.large_string()), TRIM)
     assert info is None and out.to_pylist() == plain
+    assert [strip_stamp(line) for line in plain] == [(line, None) for line in plain]
+
+
+def test_the_ide_pattern_other_readers_import_still_strips_the_ide_stamp():
+    import re
+
+    from pipeline.ingest.parse import IDE_PREFIX
+
+    assert re.sub(IDE_PREFIX, "", "18:2:13.521 -> 0,0,511,1") == "0,0,511,1"
+    assert re.sub(IDE_PREFIX, "", "12:34:56.789123 -> 0,0,511,1") == "0,0,511,1"
 
 
 def test_every_dialect_has_a_form():
