@@ -7,7 +7,7 @@ PY     := $(VENV)/bin/python
 PDR    := $(VENV)/bin/pdr
 STAMP  := $(VENV)/.installed-stamp
 
-.PHONY: all run test test-fast bench bench-discovery gate setup clean viewer-deps bytecode
+.PHONY: all run test test-fast bench bench-discovery bench-discovery-shipped gate setup clean viewer-deps bytecode
 
 all: run
 
@@ -52,6 +52,9 @@ bench: bytecode
 
 bench-discovery: bytecode
 	$(PY) -m benchmarks.discovery_matrix
+
+bench-discovery-shipped: bytecode
+	$(PY) -m benchmarks.discovery_matrix --shipped
 
 clean:
 	rm -rf processed

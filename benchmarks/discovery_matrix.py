@@ -1,4 +1,8 @@
-"""The discovery matrix (``make bench-discovery``): does ``pdr discover`` name what is hidden?
+"""The discovery matrices (``make bench-discovery``): does ``pdr discover`` name what is hidden?
+
+By default the randomised matrix (``benchmarks.discovery_randomised``): >= 300 recordings drawn
+from every convention a lab's rig and capture can have.  ``--shipped``: the matrix on the
+shipped rig's conventions, below.
 
 Every catalogued effect at two magnitudes and two current-noise levels, over
 seeds, recorded by the virtual rig (its own reference plant and sensor chain,
@@ -7,7 +11,8 @@ any recording; plus stacked pairs, clean recordings, recordings without a
 logged command, and an effect outside the catalogue (a cogging torque, injected with a custom plant).  Prints a confusion matrix, the
 parameter errors, the MSE reduction and the time per recording.
 
-    python -m benchmarks.discovery_matrix [--seeds N] [--quick]
+    python -m benchmarks.discovery_matrix [--recordings N] [--seed S] [--out FILE] [--partial-summary]
+    python -m benchmarks.discovery_matrix --shipped [--seeds N] [--quick]
 """
 
 from __future__ import annotations
@@ -150,9 +155,28 @@ def _short(label: str) -> str:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seeds", type=int, default=2)
-    ap.add_argument("--quick", action="store_true", help="one magnitude, one noise level, fewer pairs")
+    ap.add_argument("--shipped", action="store_true", help="the matrix on the shipped rig's conventions")
+    ap.add_argument("--seeds", type=int, default=2, help="--shipped: seeds per case")
+    ap.add_argument("--quick", action="store_true", help="--shipped: one magnitude, one noise level, fewer pairs")
+    ap.add_argument("--recordings", type=int, default=300, help="randomised: how many recordings to draw")
+    ap.add_argument("--seed", type=int, default=15, help="randomised: the draw's seed")
+    ap.add_argument("--workers", type=int, default=2, help="randomised: recordings run at a time")
+    ap.add_argument("--timed-every", type=int, default=1,
+                    help="randomised: run the command itself on every K-th recording (the others in-process)")
+    ap.add_argument("--out", type=Path, default=None, help="randomised: the JSON results file")
+    ap.add_argument("--partial-summary", action="store_true",
+                    help="randomised: summarise what a stopped run finished, run nothing")
     args = ap.parse_args()
+    if not args.shipped:
+        from benchmarks import discovery_randomised
+
+        if args.partial_summary:
+            discovery_randomised.summarise_partial(args.seed, args.out or discovery_randomised.DEFAULT_OUT,
+                                                   args.recordings)
+            return
+        discovery_randomised.main(args.recordings, args.seed, args.out or discovery_randomised.DEFAULT_OUT,
+                                  args.workers, args.timed_every)
+        return
     rows = []
     with tempfile.TemporaryDirectory(prefix="pdr-bench-discovery-") as tmp:
         for case in cases(args.seeds, args.quick):

@@ -19,11 +19,11 @@ import pyarrow.compute as pc
 
 from pipeline.config import ColumnsConfig
 from pipeline.errors import IngestError
+from pipeline.ingest.prefix import BY_NAME, PrefixInfo, strip_prefixes
 
 BOM = b"\xef\xbb\xbf"
 TRIM = " \t\r\n"
-# Arduino IDE serial monitor prefix, 1.x "12:34:56.789 -> " and 2.x "18:2:13.521 -> "
-IDE_PREFIX = r"^[0-9]{1,2}:[0-9]{1,2}:[0-9]{1,2}\.[0-9]{1,3} ?-> ?"
+IDE_PREFIX = BY_NAME["arduino-ide"].pattern        # the Arduino IDE monitor's stamp; every terminal's: prefix.py
 INT_RE = r"-?[0-9]{1,18}"
 TIME_RE = r"-?[0-9]{1,15}(\.[0-9]{1,9})?"
 LOGICAL = ("t_raw", "counts", "adc", "dir")        # raw columns in INTERFACE.md order
@@ -71,6 +71,7 @@ class ParsedFile:
     header_lines: list[int]
     quarantined: list[Quarantined]           # lines outside any segment's rows (text, bad bytes)
     notes: list[str]
+    prefix: PrefixInfo | None = None         # the serial terminal's time stamps, when the lines carry them
 
 
 def _q(line: int, reason: str, text: str) -> Quarantined:
@@ -79,8 +80,8 @@ def _q(line: int, reason: str, text: str) -> Quarantined:
 
 # --------------------------------------------------------------------------- lines
 
-def split_lines(data: bytes, source: str) -> tuple[pa.Array, list[Quarantined], list[str]]:
-    """Lines without terminators, trimmed and without IDE prefixes; undecodable lines blanked and reported."""
+def split_lines(data: bytes, source: str) -> tuple[pa.Array, list[Quarantined], list[str], PrefixInfo | None]:
+    """Lines without terminators, trimmed and without terminal time stamps; undecodable lines blanked and reported."""
     notes: list[str] = []
     if not data.strip(b" \t\r\n"):
         raise IngestError("empty file: expected CSV lines of samples (t_ms,counts,adc,dir)", path=source)
@@ -112,11 +113,13 @@ def split_lines(data: bytes, source: str) -> tuple[pa.Array, list[Quarantined], 
     n = len(offsets) - 1
     lines = pa.LargeStringArray.from_buffers(n, pa.py_buffer(offsets), pa.py_buffer(data))     # zero copy
     text = pc.utf8_trim(lines, characters=TRIM)
-    has_prefix = pc.match_substring_regex(text, IDE_PREFIX)
-    if pc.any(has_prefix).as_py():
-        text = pc.utf8_trim(pc.replace_substring_regex(text, IDE_PREFIX, ""), characters=TRIM)
-        notes.append(f"Arduino IDE timestamp prefix removed from {pc.sum(has_prefix).as_py()} lines")
-    return text, bad, notes
+    text, prefix = strip_prefixes(text, TRIM)
+    if prefix is not None and prefix.lines:
+        notes.append(f"{BY_NAME[prefix.dialect].label} timestamp prefix removed from {prefix.lines} lines "
+                     f"(first sample at {prefix.wall_clock_start})")
+    if prefix is not None and prefix.banner:
+        notes.append(f"PuTTY log banner at line {prefix.banner_line} read as a comment")
+    return text, bad, notes, prefix
 
 
 def has_control_bytes(buf: np.ndarray) -> bool:
@@ -251,7 +254,7 @@ def parse_capture(data: bytes, columns: ColumnsConfig, source: str) -> ParsedFil
 
     The general path; ``pipeline.ingest.plain.parse_plain`` is the shortcut for clean captures.
     """
-    text, bad_bytes, notes = split_lines(data, source)
+    text, bad_bytes, notes, prefix = split_lines(data, source)
     n = len(text)
     length = pc.utf8_length(text).to_numpy(zero_copy_only=False)
     blank = length == 0
@@ -309,7 +312,7 @@ def parse_capture(data: bytes, columns: ColumnsConfig, source: str) -> ParsedFil
         raise IngestError("no recognisable columns: no data rows of numbers found", path=source)
     return ParsedFile(segments=segments, lines_total=n, blank_lines=int(blank.sum()) - len(bad_bytes),
                       comment_lines=int(comment.sum()), header_lines=[i + 1 for i in header_idx],
-                      quarantined=quarantined, notes=notes)
+                      quarantined=quarantined, notes=notes, prefix=prefix)
 
 
 def reframe(seg: Segment) -> tuple[np.ndarray, dict[str, np.ndarray], list[Quarantined], int]:

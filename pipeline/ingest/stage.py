@@ -145,6 +145,7 @@ def capture_report(cap: Capture) -> dict:
             continue
         zero = zeros.get(seg.index)
         entry |= {"first_line": int(seg.line[0]), "last_line": int(seg.line[-1]), "counter_wraps": wraps,
+                  "wall_clock_start": parsed.prefix.wall_clock_at(int(seg.line[0])) if parsed.prefix else None,
                   "timing": timing_stats(t, cfg.columns.time_unit, seg.line, cfg.controller.period_s),
                   "current_zero": zero.to_dict() if zero else None,
                   "adc_saturation": saturation(seg.values["adc"], cfg.current_sensor.adc_steps) if zero else None,
@@ -169,6 +170,7 @@ def capture_report(cap: Capture) -> dict:
         "rows": {"read": kept_rows + len(cap.quarantined), "kept": sum(len(r.signals) for r in cap.runs),
                  "quarantined": len(cap.quarantined)},
         "quarantined": [q.to_dict() for q in cap.quarantined],
+        "timestamp_prefix": parsed.prefix.to_dict() if parsed.prefix else None,
         "board_resets": len(parsed.segments) - 1 - (1 if parsed.segments[0].header_line is None
                                                     and parsed.header_lines else 0),
         "defects": defects,

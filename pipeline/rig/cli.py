@@ -8,6 +8,7 @@ from typing import Annotated, Any
 import typer
 
 from pipeline.errors import PdrError
+from pipeline.rig.serial import TERMINAL_STAMPS
 
 app = typer.Typer(help="The virtual rig: synthetic recordings with hidden effects and serial artefacts.",
                   no_args_is_help=True)
@@ -17,6 +18,7 @@ _FLAGS = {"crlf": ("crlf", True), "bom": ("bom", True), "partial": ("partial_fir
           "ide": ("ide_prefix", "classic"), "ide2": ("ide_prefix", "ide2")}
 _COUNTS = {"comments": "comments", "blank": "blank_lines", "garbled": "garbled", "dropped": "dropped"}
 ARTEFACT_HELP = ("crlf, bom, partial, no-header, no-dir, ide (12:34:56.789 -> ), ide2 (18:2:13.521 -> ), "
+                 "terminal=STYLE (another terminal's stamps: " + "|".join(TERMINAL_STAMPS) + "), stamp-digits=N, "
                  "comments=N, blank=N, garbled=N, dropped=N, reset=S (board reset S seconds in), "
                  "reset-gap=S, time=ms|us|s, columns=T,COUNTS,ADC,DIR")
 
@@ -55,6 +57,10 @@ def parse_artefacts(items: list[str]):
                 kw[_COUNTS[word]] = int(value)
             elif word in ("reset", "reset-gap") and eq:
                 kw["reset_after_s" if word == "reset" else "reset_gap_s"] = float(value)
+            elif word == "terminal" and eq:
+                kw["terminal"] = value
+            elif word == "stamp-digits" and eq:
+                kw["stamp_digits"] = int(value)
             elif word == "time" and eq:
                 kw["time_unit"] = value
             elif word == "columns" and eq:
@@ -203,3 +209,29 @@ def summary_line(name: str, rec) -> str:
     kinds = [k for k, v in meta["artefacts"]["requested"].items() if v != defaults[k] and k != "reset_gap_s"]
     return (f"{name}: {len(t)} samples in {len(meta['segments'])} segment(s), {switches} switches, "
             f"{meta['n_lines']} lines; hidden effects: {hidden}; artefacts: {', '.join(kinds) or 'none'}")
+
+
+@app.command("randomise")
+def randomise(
+    name: Annotated[str, typer.Argument(help="Recording name: writes NAME.csv, NAME.toml, truth/NAME.truth.*")],
+    seed: Annotated[int, typer.Option(help="The draw's seed: same seed, same lab, same bytes.")] = 0,
+    out: Annotated[Path, typer.Option(help="Folder to write into.")] = Path("raw"),
+) -> None:
+    """Record one run of a lab drawn at random: its rig's conventions, its capture and its hidden effects
+    (pipeline/rig/randomised.py; the truth JSON says what was drawn).
+
+    Example: pdr rig randomise some_lab --seed 42
+    """
+    import numpy as np
+
+    from pipeline.rig.randomised import randomised_setup
+    from pipeline.rig.recording import check_name, make_recording, write_recording
+
+    check_name(name)
+    draw = randomised_setup(np.random.default_rng(seed))
+    rec = make_recording(draw.setup)
+    paths = write_recording(rec, out, name)
+    typer.echo(summary_line(name, rec) + (f"; outside the catalogue: {draw.outside}" if draw.outside else ""))
+    typer.echo("  " + ", ".join(f"{k}={v}" for k, v in draw.conventions.items()))
+    for p in paths.values():
+        typer.echo(f"  wrote {p}")

@@ -16,12 +16,19 @@ Other stages use this in their tests; the API is stable:
                                        "auto" or "nominal" (2.5 V)
     artefacts      Artefacts()         serial dialect/artefacts (``pipeline.rig.serial``), all off
     seed           0                   used when ``make_recording`` gets no seed
+    open_after_s   0.0                 the capture opens this long after the board started: earlier
+                                       samples are not in the file (logging opened mid-motion)
+    first_dir      1                   the motor's first command after the pre-roll (1 or -1)
+    counts_rounding "round"            the encoder count of an angle: "round" or "floor" (a counter that
+                                       counts edges passed, not the nearest one)
+    plant_model    None                the rig's true [model] when it differs from the TOML's in a way no
+                                       catalogued effect expresses (an effect outside the catalogue)
 
 ``make_recording(setup, seed=None) -> Recording``
     ``csv_bytes`` (the capture), ``toml_text`` (the user's rig file), ``truth`` (DataFrame, one
-    row per sample the board took, in order: sample, segment, line (1-based, 0 = dropped), status
+    row per sample the board took after the capture opened, in order: sample, segment, line (1-based, 0 = dropped), status
     ("ok"/"garbled"/"dropped"), t_ms (millis()), t_raw (printed time value), t_s (true instant,
-    s since the first sample), theta_rad, omega_rad_s, current_a, current_measured_a (I + I0),
+    s since the first captured sample), theta_rad, omega_rad_s, current_a, current_measured_a (I + I0),
     dir, counts, adc, v_sensor (V before the ADC), stuck), ``truth_meta`` (dict: effects, plant,
     sensor zero and noise, timing, segments, turning points, injected artefacts with line
     numbers, dropped samples).  Same setup and seed => same bytes; a 500-sample
@@ -42,7 +49,7 @@ from __future__ import annotations
 import json
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
@@ -60,6 +67,9 @@ TRUTH_DIR = "truth"
 # count, at 2/3 of the cost of the reference defaults (1e-10 / 1e-12).
 _TOL = {"rtol": 1e-9, "atol": 1e-11}
 
+if TYPE_CHECKING:
+    from pipeline.model.params import ModelParams
+
 
 @dataclass(frozen=True)
 class RigSetup:
@@ -73,16 +83,29 @@ class RigSetup:
     zero_v: str = "calibrated"
     artefacts: Artefacts = Artefacts()
     seed: int = 0
+    open_after_s: float = 0.0
+    first_dir: int = 1
+    counts_rounding: str = "round"
+    plant_model: ModelParams | None = None
 
     def __post_init__(self) -> None:
         if self.zero_v not in ZERO_V_MODES:
             raise ValueError(f"zero_v must be one of {ZERO_V_MODES}, got {self.zero_v!r}")
+        if self.first_dir not in (1, -1):
+            raise ValueError(f"first_dir must be 1 or -1, got {self.first_dir!r}")
+        if self.counts_rounding not in sensors.COUNT_ROUNDING:
+            raise ValueError(f"counts_rounding must be one of {sensors.COUNT_ROUNDING}, got {self.counts_rounding!r}")
+        if self.open_after_s < 0:
+            raise ValueError(f"open_after_s must be >= 0, got {self.open_after_s}")
         if self.duration_s <= 0 or self.pre_roll_s < 0 or self.noise_v < 0 or self.zero_sigma_v < 0:
             raise ValueError("duration_s must be > 0 and pre_roll_s, noise_v, zero_sigma_v >= 0")
 
     def plant(self) -> PlantSpec:
-        """What the virtual rig really is: the believed config plus the hidden effects."""
-        return self.config.plant_spec(tuple(self.effects))
+        """What the virtual rig really is: the believed config plus the hidden effects (on its true [model])."""
+        from dataclasses import replace
+
+        config = self.config if self.plant_model is None else replace(self.config, model=self.plant_model)
+        return config.plant_spec(tuple(self.effects))
 
 
 @dataclass(frozen=True)
@@ -93,17 +116,23 @@ class Recording:
     truth_meta: dict[str, Any]
 
 
+def uncaptured_samples(setup: RigSetup, period: float) -> int:
+    """Samples the board took before the capture opened (``open_after_s``)."""
+    return int(round(setup.open_after_s / period))
+
+
 def _sessions(setup: RigSetup, period: float) -> list[tuple[int, int]]:
-    """(pre-roll samples, active samples) per logging session."""
+    """(pre-roll samples, active samples) per logging session; the first also runs while the capture is closed."""
     n_pre = int(round(setup.pre_roll_s / period))
     n_act = int(np.floor(setup.duration_s / period + 1e-9)) + 1
+    n_skip = uncaptured_samples(setup, period)
     reset = setup.artefacts.reset_after_s
     if reset is None:
-        return [(n_pre, n_act)]
+        return [(n_pre, n_act + n_skip)]
     k = int(round(reset / period))
-    if not 0 < k < n_act:
-        raise ValueError(f"reset_after_s = {reset} s is outside the {setup.duration_s} s run")
-    return [(n_pre, k), (n_pre, n_act - k)]
+    if not n_skip < k < n_act + n_skip:
+        raise ValueError(f"reset_after_s = {reset} s is outside the captured {setup.duration_s} s run")
+    return [(n_pre, k), (n_pre, n_act + n_skip - k)]
 
 
 def _simulate(setup: RigSetup, spec: PlantSpec, rng: np.random.Generator) -> tuple[dict[str, np.ndarray], list, list]:
@@ -124,7 +153,7 @@ def _simulate(setup: RigSetup, spec: PlantSpec, rng: np.random.Generator) -> tup
         true_ms, _ = sensors.loop_instants(n + (0 if last else 1), period, setup.jitter_ms, rng,
                                            start_ms=float(rng.uniform(0.0, 3.0)))
         t = t0 + (true_ms - true_ms[0]) / 1000.0
-        dir_log = np.r_[np.zeros(n_pre, dtype=int), np.ones(len(t) - n_pre, dtype=int)]
+        dir_log = np.r_[np.zeros(n_pre, dtype=int), np.full(len(t) - n_pre, setup.first_dir, dtype=int)]
         theta_ref = float(x[2] / R)
         run = run_reference(spec, t, x0=tuple(x), dir_log=dir_log, closed_loop=True, theta_ref=theta_ref, **_TOL)
         r = run.result
@@ -150,6 +179,22 @@ def _simulate(setup: RigSetup, spec: PlantSpec, rng: np.random.Generator) -> tup
     return {k: np.concatenate(v) for k, v in cols.items()}, turns, segments
 
 
+def _from_capture_start(sim: dict[str, np.ndarray], turns: list, segments: list, n_skip: int
+                        ) -> tuple[dict[str, np.ndarray], list, list]:
+    """Drop the samples taken before the capture opened; times count from the first captured sample."""
+    if n_skip == 0:
+        return sim, turns, segments
+    shift = float(sim["t_s"][n_skip])
+    sim = {k: v[n_skip:] for k, v in sim.items()}
+    sim["t_s"] = sim["t_s"] - shift
+    turns = [tp | {"t_s": tp["t_s"] - shift} for tp in turns if tp["t_s"] >= shift]
+    first = segments[0] | {"n_samples": segments[0]["n_samples"] - n_skip, "uncaptured_samples": n_skip,
+                           "t_start_s": 0.0, "pre_roll_samples": max(segments[0]["pre_roll_samples"] - n_skip, 0)}
+    rest = [seg | {"first_sample": seg["first_sample"] - n_skip, "t_start_s": seg["t_start_s"] - shift}
+            for seg in segments[1:]]
+    return sim, turns, [first, *rest]
+
+
 def make_recording(setup: RigSetup, seed: int | None = None) -> Recording:
     """One synthetic capture of the virtual rig (see the module docstring)."""
     seed = setup.seed if seed is None else int(seed)
@@ -158,11 +203,12 @@ def make_recording(setup: RigSetup, seed: int | None = None) -> Recording:
     cfg = setup.config
     spec = setup.plant()
     sim, turns, segments = _simulate(setup, spec, timing_rng)
+    sim, turns, segments = _from_capture_start(sim, turns, segments, uncaptured_samples(setup, spec.period_s))
 
     cs = cfg.current_sensor
     counts = np.concatenate([
         sensors.encoder_counts(sim["theta"][sim["segment"] == seg["segment"]], cfg.encoder.counts_per_rev,
-                               seg["theta_ref_rad"]) for seg in segments])
+                               seg["theta_ref_rad"], setup.counts_rounding) for seg in segments])
     zero_part = sensors.part_zero_v(setup.zero_sigma_v, sensor_rng)
     v_sensor = sensors.acs712_volts(sim["current"], zero_part, cs.sensitivity_v_per_a, setup.noise_v, sensor_rng)
     adc = sensors.adc_read(v_sensor, cs.adc_vref, cs.adc_steps)
@@ -210,9 +256,11 @@ def make_recording(setup: RigSetup, seed: int | None = None) -> Recording:
         "sensor": {"zero_v_part": zero_part, "zero_v_written": zero_written, "zero_v_mode": setup.zero_v,
                    "sensitivity_v_per_a": cs.sensitivity_v_per_a, "noise_v": setup.noise_v,
                    "zero_sigma_v": setup.zero_sigma_v, "counts_per_rev": cfg.encoder.counts_per_rev,
+                   "counts_rounding": setup.counts_rounding,
                    "adc_clipped_samples": int(np.sum((adc == 0) | (adc == cs.adc_steps - 1)))},
         "timing": {"period_s": spec.period_s, "jitter_ms": setup.jitter_ms, "duration_s": setup.duration_s,
-                   "pre_roll_s": setup.pre_roll_s, "wall_start_s": wall_start},
+                   "pre_roll_s": setup.pre_roll_s, "wall_start_s": wall_start, "open_after_s": setup.open_after_s,
+                   "first_dir": setup.first_dir},
         "segments": segments,
         "turning_points": turns,
         "artefacts": {"requested": asdict(art), "injected": out.injected},

@@ -26,6 +26,7 @@ import math
 import numpy as np
 
 NOMINAL_ZERO_V = 2.5            # V  Vcc/2, the ACS712 datasheet zero
+COUNT_ROUNDING = ("round", "floor")
 
 
 def loop_instants(n: int, period_s: float, jitter_ms: float, rng: np.random.Generator,
@@ -42,11 +43,17 @@ def loop_instants(n: int, period_s: float, jitter_ms: float, rng: np.random.Gene
     return true_ms, np.floor(true_ms).astype(np.int64)
 
 
-def encoder_counts(theta: np.ndarray, counts_per_rev: float, theta_ref: float = 0.0) -> np.ndarray:
-    """Quadrature count since power-up at ``theta_ref``: round(theta * cpr / 2 pi) - round(theta_ref * cpr / 2 pi)."""
+def encoder_counts(theta: np.ndarray, counts_per_rev: float, theta_ref: float = 0.0,
+                   rounding: str = "round") -> np.ndarray:
+    """Quadrature count since power-up at ``theta_ref``: round(theta * cpr / 2 pi) - round(theta_ref * cpr / 2 pi).
+
+    ``rounding="floor"``: the counter reads the edges passed (floor), as a counter whose
+    zero sits on an edge does; the two differ by half a count of bias in theta.
+    """
     scale = counts_per_rev / (2.0 * math.pi)
-    edges = np.floor(np.asarray(theta) * scale + 0.5).astype(np.int64)
-    return edges - int(math.floor(theta_ref * scale + 0.5))
+    half = 0.5 if rounding == "round" else 0.0
+    edges = np.floor(np.asarray(theta) * scale + half).astype(np.int64)
+    return edges - int(math.floor(theta_ref * scale + half))
 
 
 def part_zero_v(zero_sigma_v: float, rng: np.random.Generator) -> float:

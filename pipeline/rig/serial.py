@@ -17,11 +17,17 @@ something a pipeline could report, so the rig does not produce it.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from datetime import datetime, timedelta, timezone
+
 import numpy as np
 
 STANDARD_COLUMNS = ("t_ms", "counts", "adc", "dir")
 _COMMENTS = ("# guard reached", "# loop overrun", "# note: supply 12.0 V", "# pdr sketch v1")
 _GARBLE_KINDS = ("truncated", "flipped", "merged")
+# Other serial terminals' receive stamps (``terminal_stamp``); "putty" writes a log banner instead.
+TERMINAL_STAMPS = ("bracketed", "bracketed-time", "iso8601", "iso8601-utc", "date-time", "ts", "ts-fraction",
+                   "ts-epoch", "time-of-day", "putty")
+CAPTURE_DAY = datetime(2026, 11, 25, tzinfo=timezone(timedelta(hours=1)))   # the PC's day; wall_s counts from it
 
 
 @dataclass(frozen=True)
@@ -33,6 +39,8 @@ class Artefacts:
     dir_column: bool = True                   # the sketch prints dir
     time_unit: str = "ms"                     # "ms" millis(), "us" micros(), "s" seconds with 3 decimals
     ide_prefix: str = ""                      # "", "classic" (12:34:56.789 -> ) or "ide2" (18:2:13.521 -> )
+    terminal: str = ""                        # "" or another terminal's stamp, one of TERMINAL_STAMPS
+    stamp_digits: int = 3                     # fraction-of-second digits in ``terminal`` stamps (0-9)
     crlf: bool = False                        # CRLF line endings
     bom: bool = False                         # UTF-8 byte-order mark
     comments: int = 0                         # '#' comment lines inserted
@@ -48,6 +56,12 @@ class Artefacts:
             raise ValueError(f"time_unit must be 'ms', 'us' or 's', got {self.time_unit!r}")
         if self.ide_prefix not in ("", "classic", "ide2"):
             raise ValueError(f"ide_prefix must be '', 'classic' or 'ide2', got {self.ide_prefix!r}")
+        if self.terminal not in ("", *TERMINAL_STAMPS):
+            raise ValueError(f"terminal must be one of {TERMINAL_STAMPS}, got {self.terminal!r}")
+        if self.terminal and self.ide_prefix:
+            raise ValueError("a capture has one terminal: set ide_prefix or terminal, not both")
+        if not 0 <= self.stamp_digits <= 9:
+            raise ValueError(f"stamp_digits must be in 0..9, got {self.stamp_digits}")
         if len(self.column_names) != 4 or len(set(self.column_names)) != 4:
             raise ValueError(f"column_names must be 4 distinct names, got {self.column_names!r}")
         if min(self.comments, self.blank_lines, self.garbled, self.dropped) < 0:
@@ -118,6 +132,49 @@ def ide_prefix(wall_s: float, style: str) -> str:
     if style == "classic":
         return f"{h:02d}:{m:02d}:{s:02d}.{ms:03d} -> "
     return f"{h}:{m}:{s}.{ms:03d} -> "
+
+
+def terminal_stamp(wall_s: float, style: str, digits: int) -> str:
+    """Another terminal's receive stamp of a line (with its separator), ``digits`` fraction digits, truncated.
+
+    wall_s counts from the local midnight that starts ``CAPTURE_DAY`` (UTC+01:00).
+    """
+    ticks = int(np.floor(wall_s * 10**digits + 1e-6))
+    whole, frac = divmod(ticks, 10**digits)
+    local = CAPTURE_DAY + timedelta(seconds=whole)
+    fraction = f".{frac:0{digits}d}" if digits else ""
+    stamp = local.strftime("%H:%M:%S") + fraction
+    ymd = local.strftime("%Y-%m-%d")
+    utc = local.astimezone(timezone.utc)
+    stamps = {
+        "bracketed": f"[{ymd} {stamp}] ",
+        "bracketed-time": f"[{stamp}] ",
+        "iso8601": f"{ymd}T{stamp}+01:00 ",
+        "iso8601-utc": f"{utc.strftime('%Y-%m-%dT%H:%M:%S')}{fraction}Z\t",
+        "date-time": f"{ymd} {stamp} ",
+        "ts": local.strftime("%b %d %H:%M:%S "),
+        "ts-fraction": local.strftime("%b %d ") + stamp + " ",
+        "ts-epoch": f"{int(local.timestamp())}{fraction} ",
+        "time-of-day": f"{stamp} ",
+    }
+    if style not in stamps:
+        raise ValueError(f"no per-line stamp for terminal {style!r}")
+    return stamps[style]
+
+
+def line_stamp(wall_s: float, art: Artefacts) -> str:
+    """What the capture's terminal writes before a line: the IDE's stamp, another terminal's, or nothing."""
+    if art.ide_prefix:
+        return ide_prefix(wall_s, art.ide_prefix)
+    if art.terminal and art.terminal != "putty":
+        return terminal_stamp(wall_s, art.terminal, art.stamp_digits)
+    return ""
+
+
+def putty_banner(wall_s: float) -> str:
+    """PuTTY's session log starts with one banner line naming when logging began; lines carry no stamps."""
+    local = CAPTURE_DAY + timedelta(seconds=int(np.floor(wall_s)))
+    return f"=~=~=~=~=~=~=~=~=~=~=~= PuTTY log {local.strftime('%Y.%m.%d %H:%M:%S')} =~=~=~=~=~=~=~=~=~=~=~="
 
 
 def _eligible(rows: SerialRows) -> np.ndarray:
@@ -199,6 +256,8 @@ def render(rows: SerialRows, art: Artefacts, rng: np.random.Generator) -> Render
         tail = data_line(rows, int(rng.integers(n)), art)
         lines.insert(0, _Line(tail[tail.index(",") + 1:], "partial", (), float(rows.wall_s[0]) - 0.02))
 
+    if art.terminal == "putty":                # the log file opened a moment before the first line arrived
+        lines.insert(0, _Line(putty_banner(lines[0].wall_s - 0.5), "banner", (), lines[0].wall_s - 0.5))
     line_of = np.zeros(n, dtype=np.int64)
     injected: list[dict] = []
     out: list[str] = []
@@ -209,8 +268,7 @@ def render(rows: SerialRows, art: Artefacts, rng: np.random.Generator) -> Render
             injected.append({"kind": f"garbled_{garbled[ln.samples[0]]}", "line": number, "sample": ln.samples[0]})
         elif ln.kind not in ("data", "header"):
             injected.append({"kind": ln.kind, "line": number, "sample": None})
-        prefix = ide_prefix(ln.wall_s, art.ide_prefix) if art.ide_prefix else ""
-        out.append(prefix + ln.text)
+        out.append(line_stamp(ln.wall_s, art) + ln.text)
     for i in sorted(dropped):
         injected.append({"kind": "dropped", "line": None, "sample": i})
     eol = "\r\n" if art.crlf else "\n"

@@ -1,0 +1,251 @@
+"""The randomised discovery matrix: does ``pdr discover RAW.csv`` hold on rigs and captures it was not tuned on?
+
+Each recording is drawn by ``pipeline.rig.randomised.randomised_setup`` (a lab's own sample
+period, supply, sensor, encoder, columns, terminal, capture start, resets, lost rows, noise,
+and 0-3 hidden catalogued effects or one outside the catalogue), written as CSV + TOML, and
+decided by the functions ``pdr discover RAW.csv`` calls (ingest, derive, its longest segment,
+``discover_run``) in the worker; on every ``--timed-every``-th recording (default: all) the
+command a user runs, ``pdr discover RAW.csv --json``, also runs in a fresh process, timed
+whole (start-up, ingest, derive, discovery, report and .rrd), and its decision is checked to
+be the in-process one.  Two recordings run at a time (a process pool of two, one per core).
+
+A recording is right when the named effects are exactly the hidden ones and the verdict is
+``explained``; ``none`` with no name on a clean one; ``unexplained`` with no name outside the
+catalogue.  Parameter errors are |found - true| / |true| for every hidden effect that was named.
+Each finished recording is appended to ``<out>.partial.jsonl``: a run stopped part-way is
+finished, not redone, by running the same command again.
+
+    python -m benchmarks.discovery_matrix [--recordings N] [--seed S] [--timed-every K] [--out FILE]
+                                          [--partial-summary]
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from pipeline.model.effects import CATALOGUE
+
+DEFAULT_OUT = Path("benchmarks/results/discovery_randomised.json")
+PDR = Path(sys.executable).with_name("pdr")
+
+
+def expected_verdict(label: str) -> str:
+    return "none" if label == "clean" else "unexplained" if label.startswith("outside:") else "explained"
+
+
+def _command(csv: Path, processed: Path) -> tuple[dict | str, float, float]:
+    """``pdr discover RAW.csv --json`` in a fresh process: its JSON (or its last error line), wall and CPU seconds."""
+    t0, before = time.perf_counter(), resource.getrusage(resource.RUSAGE_CHILDREN)
+    proc = subprocess.run([str(PDR), "discover", str(csv), "--json", "--processed", str(processed)],
+                          capture_output=True, text=True, cwd=csv.parent)
+    wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    if proc.returncode != 0:
+        return (proc.stderr.strip().splitlines() or ["?"])[-1], wall, cpu
+    return json.loads(proc.stdout), wall, cpu
+
+
+def _in_process(csv: Path, processed: Path) -> dict | str:
+    """What the command decides, by the functions it calls (ingest, derive, its longest segment, discover_run),
+    without its start-up and without writing its report, plots and .rrd; or the error it would print."""
+    from pipeline.derive.stage import derive_run
+    from pipeline.discover.cli import _samples
+    from pipeline.discover.stage import discover_run
+    from pipeline.errors import PdrError
+    from pipeline.ingest.stage import ingest_recording
+
+    try:
+        runs = ingest_recording(csv, processed).runs
+        for paths in runs:
+            derive_run(paths)
+        _, doc = discover_run(max(runs, key=lambda p: _samples(p.kinematics)), recording=str(csv))
+    except PdrError as err:
+        return str(err)
+    return doc
+
+
+def _found(doc: dict) -> dict[str, dict[str, float]]:
+    return {e["name"]: e["parameters"] for e in doc["effects"]}
+
+
+def run_one(index: int, seed: int, work: Path, timed: bool) -> dict:
+    """Draw recording ``index``, write it, decide it in-process and, when ``timed``, by the command too."""
+    from pipeline.rig.randomised import randomised_setup
+    from pipeline.rig.recording import make_recording, write_recording
+
+    draw = randomised_setup(np.random.default_rng([seed, index]))
+    name = f"r{index:04d}"
+    t0 = time.perf_counter()
+    rec = make_recording(draw.setup)
+    write_recording(rec, work / "raw", name)
+    csv = work / "raw" / f"{name}.csv"
+    row = {"index": index, "label": draw.label, "n_effects": len(draw.effects), "outside": draw.outside,
+           "expected": expected_verdict(draw.label), "make_s": time.perf_counter() - t0,
+           "samples": len(rec.truth), "conventions": draw.conventions,
+           "truth": {e.name: e.parameters for e in draw.effects}, "discover_wall_s": None, "discover_cpu_s": None}
+    t0, c0 = time.perf_counter(), time.process_time()
+    doc = _in_process(csv, work / "in-process" / name)
+    row |= {"in_process_wall_s": time.perf_counter() - t0, "in_process_cpu_s": time.process_time() - c0}
+    if timed:
+        cmd, wall, cpu = _command(csv, work / "processed")
+        row |= {"discover_wall_s": wall, "discover_cpu_s": cpu, "decided_by": "in-process and command",
+                "command_agrees": (isinstance(cmd, dict) and isinstance(doc, dict)
+                                   and (cmd["verdict"], _found(cmd)) == (doc["verdict"], _found(doc))) or cmd == doc}
+    else:
+        row["decided_by"] = "in-process"
+    if isinstance(doc, str):
+        return row | {"verdict": "error", "found": {}, "error": doc, "right": False, "param_err": {}}
+    found = _found(doc)
+    errors = {}
+    for name_, params in row["truth"].items():
+        if name_ in found:
+            errors[name_] = max(abs(found[name_][k] - v) / abs(v) for k, v in params.items())
+    right = set(found) == set(row["truth"]) and doc["verdict"] == row["expected"]
+    return row | {"verdict": doc["verdict"], "found": found, "right": right, "param_err": errors}
+
+
+def _kind(label: str) -> str:
+    if label == "clean" or label.startswith("outside:"):
+        return label
+    return f"{label.count('+') + 1} effect(s)"
+
+
+def summarise(rows: list[dict]) -> dict:
+    """Confusion tables, parameter errors and times, as printed and as written to JSON."""
+    df = pd.DataFrame(rows)
+    df["kind"] = df["label"].map(_kind)
+    verdicts = pd.crosstab(df["kind"], df["verdict"])
+    per_effect = []
+    for name in CATALOGUE:
+        present = df["truth"].map(lambda t: name in t)
+        named = df["found"].map(lambda f: name in f)
+        errs = [r["param_err"][name] for r in rows if name in r["param_err"]]
+        per_effect.append({"effect": name, "hidden_in": int(present.sum()), "named_when_hidden": int((present & named).sum()),
+                           "named_when_absent": int((~present & named).sum()),
+                           "param_err_median": float(np.median(errs)) if errs else None,
+                           "param_err_max": float(np.max(errs)) if errs else None})
+    single = df[df["n_effects"] == 1]
+    first = single.apply(lambda r: next(iter(r["found"]), r["verdict"]), axis=1) if len(single) else pd.Series(dtype=str)
+    confusion = pd.crosstab(single["label"], first) if len(single) else pd.DataFrame()
+    errs = [e for r in rows for e in r["param_err"].values()]
+    no_effect = df[df["label"].eq("clean") | df["label"].str.startswith("outside:")]
+    timed = df[df["discover_wall_s"].notna()]
+    wall, cpu = timed["discover_wall_s"].astype(float), timed["discover_cpu_s"].astype(float)
+    agree = timed["command_agrees"].dropna() if "command_agrees" in timed else pd.Series(dtype=bool)
+    return {
+        "recordings": len(df), "right": int(df["right"].sum()), "right_fraction": float(df["right"].mean()),
+        "right_by_kind": {k: f"{int(g['right'].sum())}/{len(g)}" for k, g in df.groupby("kind")},
+        "effect_named_without_one": int(no_effect["found"].map(bool).sum()), "without_one": len(no_effect),
+        "errors": int((df["verdict"] == "error").sum()),
+        "verdicts_by_kind": verdicts.to_dict(orient="index"),
+        "single_effect_confusion": confusion.to_dict(orient="index"),
+        "per_effect": per_effect,
+        "param_err_median": float(np.median(errs)) if errs else None,
+        "param_err_max": float(np.max(errs)) if errs else None,
+        "param_err_within_20pct": f"{sum(e <= 0.2 for e in errs)}/{len(errs)}",
+        "command_timed": len(timed),
+        "command_agrees_with_in_process": f"{int(agree.astype(bool).sum())}/{len(agree)}",
+        "in_process_cpu_s": {"median": float(df["in_process_cpu_s"].median()), "max": float(df["in_process_cpu_s"].max())}
+        if "in_process_cpu_s" in df else None,
+        "discover_wall_s": {"median": float(wall.median()), "max": float(wall.max()), "mean": float(wall.mean()),
+                            "over_10s": int((wall > 10).sum()), "over_2s": int((wall > 2).sum())},
+        "discover_cpu_s": {"median": float(cpu.median()), "max": float(cpu.max()), "mean": float(cpu.mean())},
+        "load_average_at_end": os.getloadavg(),
+    }
+
+
+def print_summary(s: dict) -> None:
+    pd.set_option("display.width", 250)
+    pd.set_option("display.max_columns", 30)
+    print(f"\nRight: {s['right']} of {s['recordings']} ({100 * s['right_fraction']:.1f} %); by kind: {s['right_by_kind']}")
+    print(f"Effect named on a recording without a catalogued one: {s['effect_named_without_one']} of {s['without_one']}; "
+          f"discover failed: {s['errors']}")
+    print("\nVerdicts (rows: what is hidden):")
+    print(pd.DataFrame(s["verdicts_by_kind"]).T.fillna(0).astype(int))
+    if s["single_effect_confusion"]:
+        print("\nConfusion matrix of single-effect recordings (rows: hidden; columns: first effect named, or the verdict):")
+        print(pd.DataFrame(s["single_effect_confusion"]).T.fillna(0).astype(int))
+    print("\nPer effect (over every recording):")
+    print(pd.DataFrame(s["per_effect"]).set_index("effect").round(4))
+    print(f"\nParameter error where named: median {s['param_err_median']}, max {s['param_err_max']} "
+          f"(within 20 %: {s['param_err_within_20pct']})")
+    w = s["discover_wall_s"]
+    print(f"The command ran on {s['command_timed']} recordings (its decision equal to the in-process one on "
+          f"{s['command_agrees_with_in_process']}); in-process CPU (ingest, derive, discovery, no report): "
+          f"{s['in_process_cpu_s']}")
+    print(f"pdr discover RAW.csv, wall per recording (two at a time on this machine, load average at the end "
+          f"{s['load_average_at_end'][0]:.1f}): median {w['median']:.2f} s, max {w['max']:.2f} s, mean {w['mean']:.2f} s; "
+          f"over 2 s: {w['over_2s']}, over 10 s: {w['over_10s']}")
+    c = s["discover_cpu_s"]
+    print(f"  CPU of that command (user + system, its own threads summed; blind to the load): median {c['median']:.2f} s, "
+          f"max {c['max']:.2f} s, mean {c['mean']:.2f} s")
+
+
+def _done_rows(partial: Path, seed: int) -> dict[int, dict]:
+    """Rows a stopped run of the same seed already finished (one JSON object per line)."""
+    if not partial.is_file():
+        return {}
+    rows = [json.loads(line) for line in partial.read_text().splitlines() if line.strip()]
+    return {r["index"]: {"decided_by": "command", "command_agrees": None} | r for r in rows if r.get("seed") == seed}
+
+
+def summarise_partial(seed: int, out: Path, wanted: int) -> dict:
+    """The summary of what a stopped run finished (its partial file is kept, so the run can still be finished)."""
+    partial = out.with_name(out.name + ".partial.jsonl")
+    rows = [r for _, r in sorted(_done_rows(partial, seed).items())]
+    if not rows:
+        raise SystemExit(f"{partial}: no finished recording for seed {seed}")
+    summary = summarise(rows)
+    print(f"PARTIAL: {len(rows)} of {wanted} recordings finished")
+    print_summary(summary)
+    from pipeline.io.atomic import write_json
+
+    write_json(out, {"seed": seed, "complete": False, "wanted": wanted, "summary": summary, "recordings": rows})
+    print(f"\nwrote {out}")
+    return summary
+
+
+def main(recordings: int, seed: int, out: Path, workers: int = 2, timed_every: int = 1) -> dict:
+    """Run (or finish: rows already in ``<out>.partial.jsonl`` for this seed are kept) and summarise;
+    the command itself runs on every ``timed_every``-th recording (1: all)."""
+    out.parent.mkdir(parents=True, exist_ok=True)
+    partial = out.with_name(out.name + ".partial.jsonl")
+    done = _done_rows(partial, seed)
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="pdr-bench-randomised-") as tmp, \
+            ProcessPoolExecutor(max_workers=workers) as pool, partial.open("a") as log:
+        work = Path(tmp)
+        futures = {i: pool.submit(run_one, i, seed, work, i % timed_every == 0)
+                   for i in range(recordings) if i not in done}
+        for i in range(recordings):
+            r = done[i] if i in done else futures[i].result() | {"seed": seed}
+            if i not in done:
+                log.write(json.dumps(r, sort_keys=True) + "\n")
+                log.flush()
+            rows.append(r)
+            print(f"{'ok ' if r['right'] else 'BAD'} {r['index']:4d} {r['label']:60s} -> {r['verdict']:11s} "
+                  f"{'+'.join(r['found']) or '-':50s} err {max(r['param_err'].values(), default=float('nan')):.3f} "
+                  f"{r['samples']:6d} samples"
+                  + (f" pdr discover {r['discover_wall_s']:.2f} s wall {r['discover_cpu_s']:.2f} s CPU"
+                     if r["discover_wall_s"] is not None else "")
+                  + (f"  [{r['error']}]" if r.get("error") else ""), flush=True)
+    summary = summarise(rows)
+    print_summary(summary)
+    from pipeline.io.atomic import write_json
+
+    write_json(out, {"seed": seed, "complete": True, "wanted": recordings, "summary": summary, "recordings": rows})
+    partial.unlink()
+    print(f"\nwrote {out}")
+    return summary
