@@ -11,7 +11,10 @@ pre-log command, one for the logged commands) make the estimate a weighted linea
 squares problem, as MATLAB's ``findstates`` does, with its covariance.  The commands are
 -1, 0 or +1: every plausible pre-log sequence is tried and the most probable kept.  A plant with
 Coulomb friction or backlash is not affine; its estimate is refined from the superposed one
-by a few ``scipy.optimize.least_squares`` steps on the full simulation.  Signals are weighted by their own noise (``noise.signal_noise``).
+by a few Gauss-Newton steps on the full simulation, its Jacobian taken by central differences
+once (six simulations) and kept: ``scipy.optimize.least_squares`` re-differences at every
+step.  Signals are weighted by their own noise (``noise.signal_noise``), or by their misfit
+where the model misses by more.
 
 The pre-log commands enter the simulator as samples before the first one: the command
 decided at t0 - Td reaches the motor at t0 (the command in force at the first sample),
@@ -27,7 +30,6 @@ import itertools
 from dataclasses import dataclass, fields, replace
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from pipeline.model.effects import PlantSpec
 from pipeline.model.simulate import SimResult, simulate
@@ -41,7 +43,8 @@ WINDOW_SAMPLES = 1200
 # Typical sizes of [I, w, delta] (A, rad/s, m): the unit responses are simulated at these
 # amplitudes so the least-squares columns are of comparable size.
 STATE_SCALES = np.array([0.1, 1.0, 0.01])
-REFINE_EVALUATIONS = 20          # least_squares evaluations for a plant that is not affine in x0
+REFINE_STEPS = 6                 # Gauss-Newton steps for a plant that is not affine in x0
+JACOBIAN_STEP = 1e-3             # of a coefficient (a fraction of the state's typical size)
 STATE_NAMES = ("current_a", "omega_rad_s", "delta_m")
 # A command change among the pre-log commands is a priori unlikely: the rig reverses about once
 # in 35 samples.  A change costs 2 ln 35 ~ 7 in the weighted squared residual (-2 log of its prior
@@ -227,6 +230,42 @@ def _spread(fits: list, Phi: np.ndarray, scale: float) -> np.ndarray:
     return (d * p[:, None]).T @ d
 
 
+def _jacobian(p: _Problem, a: np.ndarray, commands) -> np.ndarray:
+    """d(outputs)/d(coefficients) of the full simulation at ``a``, by central differences."""
+    cols = []
+    for i in range(3):
+        h = np.zeros(3)
+        h[i] = JACOBIAN_STEP
+        up = p.outputs(p.run((a + h) * STATE_SCALES, commands))
+        down = p.outputs(p.run((a - h) * STATE_SCALES, commands))
+        cols.append((up - down) / (2.0 * JACOBIAN_STEP))
+    return np.column_stack(cols)
+
+
+def _gauss_newton(p: _Problem, a: np.ndarray, commands, J: np.ndarray,
+                  w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A few Gauss-Newton steps with a fixed Jacobian, each halved until the weighted cost drops."""
+    residual = p.y - p.outputs(p.run(a * STATE_SCALES, commands))
+    cost = float(np.sum((residual * w) ** 2))
+    Jw = J * w[:, None]
+    for _ in range(REFINE_STEPS):
+        step = np.linalg.lstsq(Jw, residual * w, rcond=None)[0]
+        for _ in range(4):
+            trial = a + step
+            r = p.y - p.outputs(p.run(trial * STATE_SCALES, commands))
+            c = float(np.sum((r * w) ** 2))
+            if c < cost:
+                break
+            step = step / 2.0
+        else:
+            break
+        gain = (cost - c) / max(cost, 1e-300)
+        a, residual, cost = trial, r, c
+        if gain < 1e-6:
+            break
+    return a, residual
+
+
 def _first_weights(p: _Problem) -> list[np.ndarray]:
     """Where the reweighting starts: every signal at its noise, and the angle alone (a model that
     misses the current by far more than its noise must not drag the angle after it)."""
@@ -272,20 +311,21 @@ def estimate_start(spec: PlantSpec, t: np.ndarray, dir_log: np.ndarray, observed
     _, fits, variances = best
     _, commands, a = fits[0]
     w = p.weights(variances)
+    J = F
     if spec.is_linear:
         x0 = Phi @ a
     else:
-        # not affine in x0 (Coulomb friction, backlash): least squares on the full simulation,
-        # from the superposed estimate
-        fit = least_squares(lambda v: (p.y - p.outputs(p.run(v * STATE_SCALES, commands))) * w, a,
-                            max_nfev=REFINE_EVALUATIONS, diff_step=1e-3)
-        a = fit.x
-        final = p.run(a * STATE_SCALES, commands)
-        x0 = _state(final, p.m)
-        residual = p.y - p.outputs(final)
-    Fw = F * w[:, None]
+        # not affine in x0 (Coulomb friction, backlash): Gauss-Newton on the full simulation from
+        # the superposed estimate, reweighted by the misfit it leaves
+        J = _jacobian(p, a, commands)
+        for _ in range(2):
+            a, residual = _gauss_newton(p, a, commands, J, w)
+            variances = p.variances(residual)
+            w = p.weights(variances)
+        x0 = _state(p.run(a * STATE_SCALES, commands), p.m)
+    Jw = J * w[:, None]
     scale = _residual_scale(residual * w, p.dof)
-    cov_x = Phi @ (scale * np.linalg.pinv(Fw.T @ Fw)) @ Phi.T + _spread(fits, Phi, scale)
+    cov_x = Phi @ (scale * np.linalg.pinv(Jw.T @ Jw)) @ Phi.T + _spread(fits, Phi, scale)
     sigma = np.sqrt(np.clip(np.diag(cov_x), 0.0, None))
     return Start(x0=tuple(float(v) for v in x0), sigma=tuple(float(v) for v in sigma),
                  lead_s=tuple(float(v) for v in p.lead), commands=tuple(int(c) for c in commands),

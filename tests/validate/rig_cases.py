@@ -14,6 +14,7 @@ import tempfile
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
 from pipeline.config import RigConfig, default_config
@@ -28,13 +29,22 @@ def sensor_config(sensitivity_v_per_a: float, config: RigConfig | None = None) -
     return replace(cfg, current_sensor=replace(cfg.current_sensor, sensitivity_v_per_a=sensitivity_v_per_a))
 
 
-def _late_capture(csv: bytes, open_s: float) -> bytes:
-    """The header and the data lines printed from ``open_s`` after the first sample on."""
+def _late_capture(csv: bytes, first_ms: int) -> bytes:
+    """The header and the data lines printed from millis() = ``first_ms`` on."""
     lines = csv.decode().splitlines(keepends=True)
     header, rows = lines[0], lines[1:]
-    t_first = int(rows[0].split(",")[0])
-    kept = [r for r in rows if int(r.split(",")[0]) - t_first >= 1000.0 * open_s]
-    return (header + "".join(kept)).encode()
+    return (header + "".join(r for r in rows if int(r.split(",")[0]) >= first_ms)).encode()
+
+
+def _opening(truth: pd.DataFrame, open_s: float, after_switch: int | None) -> int:
+    """Index of the first sample the capture keeps: ``open_s`` into the run, or ``after_switch``
+    samples after the controller's third reversal (so that, under a loop delay, a reversed
+    command is still on its way to the motor at the first sample)."""
+    if after_switch is None:
+        return int(np.searchsorted(truth["t_ms"].to_numpy() - truth["t_ms"].iloc[0], 1000.0 * open_s))
+    d = truth["dir"].to_numpy()
+    switches = np.flatnonzero((d[1:] != d[:-1]) & (d[:-1] != 0)) + 1
+    return int(switches[2] + after_switch)
 
 
 def _first_current(csv: bytes, adc_shift: int) -> bytes:
@@ -45,10 +55,13 @@ def _first_current(csv: bytes, adc_shift: int) -> bytes:
     return "".join(lines).encode()
 
 
-def rig_case(effects: tuple[Effect, ...] = (), *, seed: int = 0, open_s: float = 0.0, first_adc_shift: int = 0,
-             config: RigConfig | None = None, work: Path | None = None,
+def rig_case(effects: tuple[Effect, ...] = (), *, seed: int = 0, open_s: float = 0.0, after_switch: int | None = None,
+             first_adc_shift: int = 0, config: RigConfig | None = None, work: Path | None = None,
              **setup) -> tuple[pd.DataFrame, RigConfig, pd.DataFrame]:
-    """(kinematics, rig config, ground truth of the samples kept) of one virtual-rig capture."""
+    """(kinematics, rig config, ground truth of the samples kept) of one virtual-rig capture.
+
+    ``open_s`` / ``after_switch``: the capture opens late (``_opening``); ``first_adc_shift``:
+    the first kept line's ADC reading moves by that many steps (a noisy first current sample)."""
     from pipeline.derive.stage import derive_run
     from pipeline.ingest.stage import ingest_recording
     from pipeline.rig.recording import RigSetup, make_recording, write_recording
@@ -58,9 +71,10 @@ def rig_case(effects: tuple[Effect, ...] = (), *, seed: int = 0, open_s: float =
     rec = make_recording(RigSetup(effects=tuple(effects), config=config or default_config(), **setup), seed=seed)
     csv = rec.csv_bytes
     truth = rec.truth
-    if open_s > 0:
-        csv = _late_capture(csv, open_s)
-        truth = truth[truth["t_ms"] - truth["t_ms"].iloc[0] >= 1000.0 * open_s].reset_index(drop=True)
+    if open_s > 0 or after_switch is not None:
+        k = _opening(truth, open_s, after_switch)
+        csv = _late_capture(csv, int(truth["t_ms"].iloc[k]))
+        truth = truth.iloc[k:].reset_index(drop=True)
     if first_adc_shift:
         csv = _first_current(csv, first_adc_shift)
     rec = replace(rec, csv_bytes=csv)
