@@ -21,7 +21,7 @@ from pipeline.errors import PdrError
 from pipeline.model.effects import Effect, PlantSpec
 from pipeline.model.simulate import SimResult
 from pipeline.validate.compare import observed_signals
-from pipeline.validate.initial_state import Observed, Start, estimate_start
+from pipeline.validate.initial_state import Observed, Start, StartEstimator, without_offset
 
 
 @dataclass(frozen=True)
@@ -39,7 +39,8 @@ class Measurement:
     dir: np.ndarray                 # int8 command after each sample (logged, else inferred)
     dir_source: str                 # "logged" or "inferred"
     samples_in_recording: int = 0   # > n when only the first MAX_SAMPLES are used
-    # estimated starts per (plant, command sequence); shared by ``replace``d copies, hence keyed on dir too
+    # start estimators per (plant without sensor offset, command sequence), each with its starts per
+    # offset; shared by ``replace``d copies, hence keyed on the command too
     _starts: dict = field(default_factory=dict, compare=False, repr=False, hash=False)
 
     @property
@@ -94,10 +95,14 @@ class Measurement:
         """The start (x0 with its uncertainty, the pre-log commands) under ``spec``, estimated
         from the data on the recording's own instants as validation does (so the MSEs agree)."""
         d = self.dir if dir_log is None else dir_log
-        key = (spec, d.tobytes())
+        plant = without_offset(spec)
+        key = (plant, d.tobytes())
         if key not in self._starts:
-            self._starts[key] = estimate_start(spec, self.t, d, self.observed)
-        return self._starts[key]
+            self._starts[key] = {"estimator": StartEstimator(plant, self.t, d, self.observed)}
+        starts = self._starts[key]
+        if spec.I0 not in starts:
+            starts[spec.I0] = starts["estimator"].start(spec.I0)
+        return starts[spec.I0]
 
     def simulate_ways(self, spec: PlantSpec, dir_log: np.ndarray) -> dict[str, SimResult]:
         """Closed loop and replay at the recording's own instants, from its start (validation's two ways)."""

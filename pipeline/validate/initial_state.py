@@ -43,7 +43,8 @@ WINDOW_SAMPLES = 1200
 # Typical sizes of [I, w, delta] (A, rad/s, m): the unit responses are simulated at these
 # amplitudes so the least-squares columns are of comparable size.
 STATE_SCALES = np.array([0.1, 1.0, 0.01])
-REFINE_STEPS = 6                 # Gauss-Newton steps for a plant that is not affine in x0
+REWEIGHTS = 3                    # reweightings by the misfit (stopped once the variances settle)
+REFINE_STEPS = 4                 # Gauss-Newton steps for a plant that is not affine in x0
 JACOBIAN_STEP = 1e-3             # of a coefficient (a fraction of the state's typical size)
 STATE_NAMES = ("current_a", "omega_rad_s", "delta_m")
 # A command change among the pre-log commands is a priori unlikely: the rig reverses about once
@@ -131,11 +132,15 @@ def _state(sim: SimResult, k: int) -> np.ndarray:
 
 
 class _Problem:
-    """The observations over the window, the model's outputs on them and the weights."""
+    """The observations over the window, the model's outputs on them and the weights.
+
+    ``spec`` is the plant without its current-sensor offset; ``I0`` is added to the modelled
+    current here, so one set of simulations serves every offset."""
 
     def __init__(self, spec: PlantSpec, t: np.ndarray, dir_log: np.ndarray, observed: Observed) -> None:
         n = _window(t)
         self.spec = spec
+        self.I0 = 0.0
         self.lead = lead_offsets(float(spec.Td), float(spec.period_s))
         self.m = len(self.lead)
         self.t = np.concatenate([t[0] + self.lead, t[:n]])
@@ -151,6 +156,7 @@ class _Problem:
         self.ok = np.concatenate(ok)
         self.which = np.concatenate(which)
         self.noise = np.array([max(float(observed[s][1]), 1e-30) for s in self.names])
+        self.current_rows = (np.array(self.names) == "current")[self.which].astype(float)
 
     def run(self, z, commands, *, logged: bool = True) -> SimResult:
         """Replay from ``z`` under the pre-log ``commands`` and (``logged``) the logged ones, else motor off."""
@@ -158,10 +164,11 @@ class _Problem:
         return simulate(self.spec, self.t, x0=tuple(z), dir0=first_dir(log), dir_log=log, closed_loop=False)
 
     def outputs(self, sim: SimResult, measured: bool = True) -> np.ndarray:
-        """Model outputs at the real samples (``measured``: the current as the sensor reads it)."""
+        """Model outputs at the real samples (``measured``: the current as the sensor reads it, + I0)."""
         m = self.m
-        cols = {"theta": sim.theta[m:], "current": (sim.current_measured if measured else sim.current)[m:]}
-        return np.concatenate([cols[s] for s in self.names])
+        cols = {"theta": sim.theta[m:], "current": sim.current[m:]}
+        out = np.concatenate([cols[s] for s in self.names])
+        return out + self.I0 * self.current_rows if measured else out
 
     def weights(self, variances: np.ndarray) -> np.ndarray:
         return np.where(self.ok, 1.0 / np.sqrt(variances[self.which]), 0.0)
@@ -275,58 +282,85 @@ def _first_weights(p: _Problem) -> list[np.ndarray]:
     return starts
 
 
-def estimate_start(spec: PlantSpec, t: np.ndarray, dir_log: np.ndarray, observed: Observed) -> Start:
-    """x0, its covariance and the pre-log commands that best explain the first samples under ``spec``.
+class StartEstimator:
+    """The simulations a start estimate needs, for one plant without its current-sensor offset;
+    ``start(I0)`` then costs no simulation for a linear plant (a sensor offset only moves the
+    measured current, so a scan over it shares them)."""
 
-    Signals are weighted by their noise or their misfit, whichever is larger, reweighted a few
-    times from two starts (``_first_weights``); the start with the better concentrated likelihood
-    (the measure discovery scores with, one variance per signal) wins.
-    """
-    p = _Problem(spec, np.asarray(t, dtype=float), np.asarray(dir_log), observed)
-    zeros = np.zeros(p.m, dtype=np.int8)
-    free = []
-    for i in range(3):
-        z = np.zeros(3)
-        z[i] = STATE_SCALES[i]
-        free.append(p.run(z, zeros, logged=False))
-    F = np.column_stack([p.outputs(s, measured=False) for s in free])
-    Phi = np.column_stack([_state(s, p.m) for s in free])        # x0 per unit coefficient
-    pulses = []
-    for j in range(p.m):
-        c = zeros.copy()
-        c[j] = 1
-        pulses.append(p.outputs(p.run((0.0, 0.0, 0.0), c, logged=False), measured=False))
-    P = np.column_stack(pulses) if pulses else np.zeros((len(p.y), 0))
-    r0 = p.y - p.outputs(p.run((0.0, 0.0, 0.0), zeros))
-    best = None
-    for variances in _first_weights(p):
-        for _ in range(3):
-            fits = _fit_commands(r0, F, P, p.weights(variances), p.m, int(p.log[0]))
-            _, commands, a = fits[0]
-            residual = r0 - P @ np.asarray(commands, dtype=float) - F @ a
-            variances = p.variances(residual)
-        score = p.score(variances)
-        if best is None or score < best[0]:
-            best = (score, fits, variances)
-    _, fits, variances = best
-    _, commands, a = fits[0]
-    w = p.weights(variances)
-    J = F
-    if spec.is_linear:
-        x0 = Phi @ a
-    else:
-        # not affine in x0 (Coulomb friction, backlash): Gauss-Newton on the full simulation from
-        # the superposed estimate, reweighted by the misfit it leaves
-        J = _jacobian(p, a, commands)
-        for _ in range(2):
-            a, residual = _gauss_newton(p, a, commands, J, w)
-            variances = p.variances(residual)
-            w = p.weights(variances)
-        x0 = _state(p.run(a * STATE_SCALES, commands), p.m)
-    Jw = J * w[:, None]
-    scale = _residual_scale(residual * w, p.dof)
-    cov_x = Phi @ (scale * np.linalg.pinv(Jw.T @ Jw)) @ Phi.T + _spread(fits, Phi, scale)
-    sigma = np.sqrt(np.clip(np.diag(cov_x), 0.0, None))
-    return Start(x0=tuple(float(v) for v in x0), sigma=tuple(float(v) for v in sigma),
-                 lead_s=tuple(float(v) for v in p.lead), commands=tuple(int(c) for c in commands),
-                 z=tuple(float(v) for v in a * STATE_SCALES))
+    def __init__(self, spec: PlantSpec, t: np.ndarray, dir_log: np.ndarray, observed: Observed) -> None:
+        p = _Problem(spec, np.asarray(t, dtype=float), np.asarray(dir_log), observed)
+        zeros = np.zeros(p.m, dtype=np.int8)
+        free = []
+        for i in range(3):
+            z = np.zeros(3)
+            z[i] = STATE_SCALES[i]
+            free.append(p.run(z, zeros, logged=False))
+        self.F = np.column_stack([p.outputs(s, measured=False) for s in free])
+        self.Phi = np.column_stack([_state(s, p.m) for s in free])        # x0 per unit coefficient
+        pulses = []
+        for j in range(p.m):
+            c = zeros.copy()
+            c[j] = 1
+            pulses.append(p.outputs(p.run((0.0, 0.0, 0.0), c, logged=False), measured=False))
+        self.P = np.column_stack(pulses) if pulses else np.zeros((len(p.y), 0))
+        self.r_base = p.y - p.outputs(p.run((0.0, 0.0, 0.0), zeros), measured=False)
+        self.p = p
+
+    def start(self, I0: float = 0.0) -> Start:
+        """x0, its covariance and the pre-log commands under the plant with sensor offset ``I0``.
+
+        Signals are weighted by their noise or their misfit, whichever is larger, reweighted a
+        few times from two starts (``_first_weights``); the start with the better concentrated
+        likelihood (the measure discovery scores with, one variance per signal) wins.
+        """
+        p, F, P, Phi = self.p, self.F, self.P, self.Phi
+        p.I0 = float(I0)
+        r0 = self.r_base - p.I0 * p.current_rows
+        best = None
+        for variances in _first_weights(p):
+            for _ in range(REWEIGHTS):
+                fits = _fit_commands(r0, F, P, p.weights(variances), p.m, int(p.log[0]))
+                _, commands, a = fits[0]
+                residual = r0 - P @ np.asarray(commands, dtype=float) - F @ a
+                previous, variances = variances, p.variances(residual)
+                if np.allclose(variances, previous, rtol=0.1):
+                    break
+            score = p.score(variances)
+            if best is None or score < best[0]:
+                best = (score, fits, variances)
+            if np.all(variances <= 4.0 * p.noise):       # the model fits every signal: nothing to guard against
+                break
+        _, fits, variances = best
+        _, commands, a = fits[0]
+        w = p.weights(variances)
+        J = F
+        if p.spec.is_linear:
+            x0 = Phi @ a
+        else:
+            # not affine in x0 (Coulomb friction, backlash): Gauss-Newton on the full simulation
+            # from the superposed estimate, reweighted by the misfit it leaves
+            J = _jacobian(p, a, commands)
+            for _ in range(2):
+                a, residual = _gauss_newton(p, a, commands, J, w)
+                previous, variances = variances, p.variances(residual)
+                w = p.weights(variances)
+                if np.allclose(variances, previous, rtol=0.1):
+                    break
+            x0 = _state(p.run(a * STATE_SCALES, commands), p.m)
+        Jw = J * w[:, None]
+        scale = _residual_scale(residual * w, p.dof)
+        cov_x = Phi @ (scale * np.linalg.pinv(Jw.T @ Jw)) @ Phi.T + _spread(fits, Phi, scale)
+        sigma = np.sqrt(np.clip(np.diag(cov_x), 0.0, None))
+        return Start(x0=tuple(float(v) for v in x0), sigma=tuple(float(v) for v in sigma),
+                     lead_s=tuple(float(v) for v in p.lead), commands=tuple(int(c) for c in commands),
+                     z=tuple(float(v) for v in a * STATE_SCALES))
+
+
+def without_offset(spec: PlantSpec) -> PlantSpec:
+    """The plant with its current-sensor offset removed (what ``StartEstimator`` simulates)."""
+    return replace(spec, I0=0.0)
+
+
+def estimate_start(spec: PlantSpec, t: np.ndarray, dir_log: np.ndarray, observed: Observed) -> Start:
+    """x0, its covariance and the pre-log commands that best explain the first samples under ``spec``."""
+    return StartEstimator(without_offset(spec), t, dir_log, observed).start(spec.I0)
