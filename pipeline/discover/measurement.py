@@ -39,8 +39,9 @@ class Measurement:
     dir: np.ndarray                 # int8 command after each sample (logged, else inferred)
     dir_source: str                 # "logged" or "inferred"
     samples_in_recording: int = 0   # > n when only the first MAX_SAMPLES are used
-    # start estimators per (plant without sensor offset, command sequence), each with its starts per
-    # offset; shared by ``replace``d copies, hence keyed on the command too
+    # start estimators per plant without sensor offset, and their starts per (plant, the command's
+    # first seconds, offset); shared by ``replace``d copies, hence keyed on the command too
+    _estimators: dict = field(default_factory=dict, compare=False, repr=False, hash=False)
     _starts: dict = field(default_factory=dict, compare=False, repr=False, hash=False)
 
     @property
@@ -96,13 +97,13 @@ class Measurement:
         from the data on the recording's own instants as validation does (so the MSEs agree)."""
         d = self.dir if dir_log is None else dir_log
         plant = without_offset(spec)
-        key = (plant, d.tobytes())
+        if plant not in self._estimators:
+            self._estimators[plant] = StartEstimator(plant, self.t, self.observed)
+        estimator = self._estimators[plant]
+        key = (plant, estimator.window(d), spec.I0)
         if key not in self._starts:
-            self._starts[key] = {"estimator": StartEstimator(plant, self.t, d, self.observed)}
-        starts = self._starts[key]
-        if spec.I0 not in starts:
-            starts[spec.I0] = starts["estimator"].start(spec.I0)
-        return starts[spec.I0]
+            self._starts[key] = estimator.start(d, spec.I0)
+        return self._starts[key]
 
     def simulate_ways(self, spec: PlantSpec, dir_log: np.ndarray) -> dict[str, SimResult]:
         """Closed loop and replay at the recording's own instants, from its start (validation's two ways)."""
@@ -113,10 +114,14 @@ class Measurement:
     def replay(self, spec: PlantSpec, x0: Start | tuple[float, float, float] | None = None,
                dir_log: np.ndarray | None = None, n: int | None = None) -> SimResult:
         """The logged command (or ``dir_log``) drives the model (smooth in the parameters), from
-        the estimated start (or ``x0``); ``n``: only the first n samples."""
+        the start estimated for that command (or ``x0``: a fixed state, or a start estimated for
+        this measurement's own command); ``n``: only the first n samples."""
         d = self.dir if dir_log is None else dir_log
         m = self.n if n is None else n
-        start = self.x0(spec) if x0 is None else x0 if isinstance(x0, Start) else Start.given(x0)
+        if x0 is None or (isinstance(x0, Start) and dir_log is not None and not np.array_equal(d, self.dir)):
+            start = self.x0(spec, d)        # the start depends on the command replayed (an inferred onset)
+        else:
+            start = x0 if isinstance(x0, Start) else Start.given(x0)
         return start.simulate(spec, self.t_fit[:m], d[:m], closed_loop=False)
 
 

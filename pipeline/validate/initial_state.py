@@ -11,9 +11,9 @@ pre-log command, one for the logged commands) make the estimate a weighted linea
 squares problem, as MATLAB's ``findstates`` does, with its covariance.  The commands are
 -1, 0 or +1: every plausible pre-log sequence is tried and the most probable kept.  A plant with
 Coulomb friction or backlash is not affine; its estimate is refined from the superposed one
-by a few Gauss-Newton steps on the full simulation, its Jacobian taken by central differences
-once (six simulations) and kept: ``scipy.optimize.least_squares`` re-differences at every
-step.  Signals are weighted by their own noise (``noise.signal_noise``), or by their misfit
+by a few Gauss-Newton steps on the full simulation, its Jacobian taken by forward differences
+once and kept (``scipy.optimize.least_squares`` re-differences at every step), unless one
+simulation shows the plant stayed affine over the window (no stick, no dead zone crossed).  Signals are weighted by their own noise (``noise.signal_noise``), or by their misfit
 where the model misses by more.
 
 The pre-log commands enter the simulator as samples before the first one: the command
@@ -44,7 +44,7 @@ WINDOW_SAMPLES = 1200
 # amplitudes so the least-squares columns are of comparable size.
 STATE_SCALES = np.array([0.1, 1.0, 0.01])
 REWEIGHTS = 3                    # reweightings by the misfit (stopped once the variances settle)
-REFINE_STEPS = 4                 # Gauss-Newton steps for a plant that is not affine in x0
+REFINE_STEPS = 3                 # Gauss-Newton steps for a plant that is not affine in x0
 JACOBIAN_STEP = 1e-3             # of a coefficient (a fraction of the state's typical size)
 STATE_NAMES = ("current_a", "omega_rad_s", "delta_m")
 # A command change among the pre-log commands is a priori unlikely: the rig reverses about once
@@ -137,14 +137,14 @@ class _Problem:
     ``spec`` is the plant without its current-sensor offset; ``I0`` is added to the modelled
     current here, so one set of simulations serves every offset."""
 
-    def __init__(self, spec: PlantSpec, t: np.ndarray, dir_log: np.ndarray, observed: Observed) -> None:
-        n = _window(t)
+    def __init__(self, spec: PlantSpec, t: np.ndarray, observed: Observed) -> None:
+        self.n = n = _window(t)
         self.spec = spec
         self.I0 = 0.0
         self.lead = lead_offsets(float(spec.Td), float(spec.period_s))
         self.m = len(self.lead)
         self.t = np.concatenate([t[0] + self.lead, t[:n]])
-        self.log = np.asarray(dir_log[:n], dtype=np.int8)
+        self.log = np.zeros(n, dtype=np.int8)          # the logged command, set per estimate
         self.names = [s for s in ("theta", "current") if s in observed]
         ys, ok, which = [], [], []
         for i, s in enumerate(self.names):
@@ -215,14 +215,17 @@ def _fit_commands(r0: np.ndarray, F: np.ndarray, P: np.ndarray, w: np.ndarray, m
                   first: int) -> list[tuple[float, tuple[int, ...], np.ndarray]]:
     """(cost, pre-log commands, coefficients) of every sequence under weights ``w``, most probable
     first; the cost is the weighted squared residual plus the prior's ``SWITCH_PENALTY`` per change."""
-    Q, Rr = np.linalg.qr(F * w[:, None])
+    Fw = F * w[:, None]
+    normal = Fw.T @ Fw
+    inverse = np.linalg.pinv(normal)
     out = []
     for c in command_sequences(m):
-        target = (r0 - P @ np.asarray(c, dtype=float)) * w
-        qt = Q.T @ target
-        cost = float(target @ target - qt @ qt) + SWITCH_PENALTY * changes(c, first)
-        out.append((cost, c, np.linalg.lstsq(Rr, qt, rcond=None)[0]))
-    return sorted(out, key=lambda item: item[0])
+        target = (r0 - P @ np.asarray(c, dtype=float)) * w if m else r0 * w
+        rhs = Fw.T @ target
+        a = inverse @ rhs
+        cost = float(target @ target - rhs @ a) + SWITCH_PENALTY * changes(c, first)
+        out.append((cost, c, a))
+    return sorted(out, key=lambda item: item[0]) if m else out
 
 
 def _spread(fits: list, Phi: np.ndarray, scale: float) -> np.ndarray:
@@ -238,14 +241,13 @@ def _spread(fits: list, Phi: np.ndarray, scale: float) -> np.ndarray:
 
 
 def _jacobian(p: _Problem, a: np.ndarray, commands) -> np.ndarray:
-    """d(outputs)/d(coefficients) of the full simulation at ``a``, by central differences."""
+    """d(outputs)/d(coefficients) of the full simulation at ``a``, by forward differences."""
+    at = p.outputs(p.run(a * STATE_SCALES, commands))
     cols = []
     for i in range(3):
         h = np.zeros(3)
         h[i] = JACOBIAN_STEP
-        up = p.outputs(p.run((a + h) * STATE_SCALES, commands))
-        down = p.outputs(p.run((a - h) * STATE_SCALES, commands))
-        cols.append((up - down) / (2.0 * JACOBIAN_STEP))
+        cols.append((p.outputs(p.run((a + h) * STATE_SCALES, commands)) - at) / JACOBIAN_STEP)
     return np.column_stack(cols)
 
 
@@ -283,12 +285,13 @@ def _first_weights(p: _Problem) -> list[np.ndarray]:
 
 
 class StartEstimator:
-    """The simulations a start estimate needs, for one plant without its current-sensor offset;
-    ``start(I0)`` then costs no simulation for a linear plant (a sensor offset only moves the
-    measured current, so a scan over it shares them)."""
+    """The simulations a start estimate needs, for one plant without its current-sensor offset:
+    the responses to unit initial states and to each pre-log command do not depend on the logged
+    command, so they are simulated once; each command then costs one replay, and a sensor offset
+    none (it only moves the measured current)."""
 
-    def __init__(self, spec: PlantSpec, t: np.ndarray, dir_log: np.ndarray, observed: Observed) -> None:
-        p = _Problem(spec, np.asarray(t, dtype=float), np.asarray(dir_log), observed)
+    def __init__(self, spec: PlantSpec, t: np.ndarray, observed: Observed) -> None:
+        p = _Problem(spec, np.asarray(t, dtype=float), observed)
         zeros = np.zeros(p.m, dtype=np.int8)
         free = []
         for i in range(3):
@@ -303,19 +306,36 @@ class StartEstimator:
             c[j] = 1
             pulses.append(p.outputs(p.run((0.0, 0.0, 0.0), c, logged=False), measured=False))
         self.P = np.column_stack(pulses) if pulses else np.zeros((len(p.y), 0))
-        self.r_base = p.y - p.outputs(p.run((0.0, 0.0, 0.0), zeros), measured=False)
         self.p = p
+        self._base: dict[bytes, np.ndarray] = {}
 
-    def start(self, I0: float = 0.0) -> Start:
-        """x0, its covariance and the pre-log commands under the plant with sensor offset ``I0``.
+    def _nearly_affine(self, a: np.ndarray, commands, predicted: np.ndarray, w: np.ndarray) -> bool:
+        """Whether the full simulation from the superposed estimate misses by no more than the
+        superposition predicted (+5 %): Coulomb friction that never sticks in the window, a dead
+        zone never crossed.  One simulation instead of a Gauss-Newton refinement."""
+        p = self.p
+        full = p.y - p.outputs(p.run(a * STATE_SCALES, commands))
+        return float(np.sum((full * w) ** 2)) <= 1.05 * float(np.sum((predicted * w) ** 2)) + 1.0
+
+    def window(self, dir_log: np.ndarray) -> bytes:
+        """The part of a command sequence the estimate sees (a cache key)."""
+        return np.asarray(dir_log[:self.p.n], dtype=np.int8).tobytes()
+
+    def start(self, dir_log: np.ndarray, I0: float = 0.0) -> Start:
+        """x0, its covariance and the pre-log commands under ``dir_log`` and sensor offset ``I0``.
 
         Signals are weighted by their noise or their misfit, whichever is larger, reweighted a
         few times from two starts (``_first_weights``); the start with the better concentrated
         likelihood (the measure discovery scores with, one variance per signal) wins.
         """
-        p, F, P, Phi = self.p, self.F, self.P, self.Phi
+        p = self.p
+        key = self.window(dir_log)
+        p.log = np.frombuffer(key, dtype=np.int8).copy()
+        if key not in self._base:
+            self._base[key] = p.y - p.outputs(p.run((0.0, 0.0, 0.0), np.zeros(p.m, dtype=np.int8)), measured=False)
         p.I0 = float(I0)
-        r0 = self.r_base - p.I0 * p.current_rows
+        r0 = self._base[key] - p.I0 * p.current_rows
+        F, P, Phi = self.F, self.P, self.Phi
         best = None
         for variances in _first_weights(p):
             for _ in range(REWEIGHTS):
@@ -334,7 +354,7 @@ class StartEstimator:
         _, commands, a = fits[0]
         w = p.weights(variances)
         J = F
-        if p.spec.is_linear:
+        if p.spec.is_linear or self._nearly_affine(a, commands, residual, w):
             x0 = Phi @ a
         else:
             # not affine in x0 (Coulomb friction, backlash): Gauss-Newton on the full simulation
@@ -363,4 +383,4 @@ def without_offset(spec: PlantSpec) -> PlantSpec:
 
 def estimate_start(spec: PlantSpec, t: np.ndarray, dir_log: np.ndarray, observed: Observed) -> Start:
     """x0, its covariance and the pre-log commands that best explain the first samples under ``spec``."""
-    return StartEstimator(without_offset(spec), t, dir_log, observed).start(spec.I0)
+    return StartEstimator(without_offset(spec), t, observed).start(np.asarray(dir_log), spec.I0)
