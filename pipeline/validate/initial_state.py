@@ -11,8 +11,7 @@ pre-log command, one for the logged commands) make the estimate a weighted linea
 squares problem, as MATLAB's ``findstates`` does, with its covariance.  The commands are
 -1, 0 or +1: every plausible pre-log sequence is tried and the most probable kept.  A plant with
 Coulomb friction or backlash is not affine; its estimate is refined from the superposed one
-by a few Gauss-Newton steps on the full simulation, its Jacobian taken by forward differences
-once and kept (``scipy.optimize.least_squares`` re-differences at every step), unless one
+by a few Gauss-Newton steps on the full simulation (forward-difference Jacobians), unless one
 simulation shows the plant stayed affine over the window (no stick, no dead zone crossed).  Signals are weighted by their own noise (``noise.signal_noise``), or by their misfit
 where the model misses by more.
 
@@ -34,11 +33,14 @@ import numpy as np
 from pipeline.model.effects import PlantSpec
 from pipeline.model.simulate import SimResult, simulate
 
-# Samples the estimate uses: the first seconds, where x0 shows most (the rig's oscillatory mode
-# decays in ~1.2 s, its slow one over ~9 s) and a model error has had the least time to grow
-# (on the virtual rig, 5 s and 30 s windows gave the same x0 within 0.3 mA and 0.005 rad/s).
-WINDOW_S = 5.0
-WINDOW_MIN_SAMPLES = 40
+# Samples the estimate uses: the first 2 s (at least 20 samples).  x0 shows most there (the rig's
+# oscillatory mode decays in ~1.2 s) and a model error has had little time to grow.  A model
+# missing a constant torque takes it up as an initial current, which a sensor offset may then
+# "explain": of six such virtual-rig recordings, one was misnamed with a 1 s window, one with 5 s,
+# none with 2 s.  With the right model, 1, 2 and 5 s gave x0 within 0.6 mA and 0.01 rad/s of the
+# truth alike.
+WINDOW_S = 2.0
+WINDOW_MIN_SAMPLES = 20
 WINDOW_SAMPLES = 1200
 # Typical sizes of [I, w, delta] (A, rad/s, m): the unit responses are simulated at these
 # amplitudes so the least-squares columns are of comparable size.
@@ -251,13 +253,15 @@ def _jacobian(p: _Problem, a: np.ndarray, commands) -> np.ndarray:
     return np.column_stack(cols)
 
 
-def _gauss_newton(p: _Problem, a: np.ndarray, commands, J: np.ndarray,
-                  w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """A few Gauss-Newton steps with a fixed Jacobian, each halved until the weighted cost drops."""
+def _gauss_newton(p: _Problem, a: np.ndarray, commands,
+                  w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A few Gauss-Newton steps (the Jacobian taken afresh at each: stick/slip bends the
+    response), each halved until the weighted cost drops; returns (a, residual, Jacobian)."""
     residual = p.y - p.outputs(p.run(a * STATE_SCALES, commands))
     cost = float(np.sum((residual * w) ** 2))
-    Jw = J * w[:, None]
     for _ in range(REFINE_STEPS):
+        J = _jacobian(p, a, commands)
+        Jw = J * w[:, None]
         step = np.linalg.lstsq(Jw, residual * w, rcond=None)[0]
         for _ in range(4):
             trial = a + step
@@ -272,7 +276,7 @@ def _gauss_newton(p: _Problem, a: np.ndarray, commands, J: np.ndarray,
         a, residual, cost = trial, r, c
         if gain < 1e-6:
             break
-    return a, residual
+    return a, residual, _jacobian(p, a, commands)
 
 
 def _first_weights(p: _Problem) -> list[np.ndarray]:
@@ -359,9 +363,8 @@ class StartEstimator:
         else:
             # not affine in x0 (Coulomb friction, backlash): Gauss-Newton on the full simulation
             # from the superposed estimate, reweighted by the misfit it leaves
-            J = _jacobian(p, a, commands)
             for _ in range(2):
-                a, residual = _gauss_newton(p, a, commands, J, w)
+                a, residual, J = _gauss_newton(p, a, commands, w)
                 previous, variances = variances, p.variances(residual)
                 w = p.weights(variances)
                 if np.allclose(variances, previous, rtol=0.1):
