@@ -3,10 +3,10 @@
 Two things live here:
 
 * the noise floor of each signal, from the recording itself, with no model and no
-  rig settings (``pipeline.validate.noise``): a robust scale of the signal's fourth
-  difference (everything smooth cancels, white noise remains), never below the
-  quantisation q^2/12 with q read off the data (encoder count, ADC step), plus
-  the clock's truncation for the angle;
+  rig settings (``pipeline.validate.noise``): a robust scale of the signal's third
+  (current) or fifth (angle) difference (everything smooth cancels, white noise
+  remains), never below the quantisation q^2/12 with q read off the data (encoder
+  count, ADC step), plus the clock's truncation for the angle;
 * signatures: where a residual concentrates, each one the fingerprint of a
   catalogued effect (MODEL.md): a bias in the current alone (sensor offset), a
   burst right after each switch (loop delay), energy near zero velocity

@@ -26,7 +26,7 @@ from pipeline.model.effects import PlantSpec
 from pipeline.model.simulate import SimResult
 from pipeline.validate.initial_state import Observed, Start, estimate_start
 from pipeline.validate.metrics import signal_errors
-from pipeline.validate.noise import signal_noise, timing_noise
+from pipeline.validate.noise import angle_noise, signal_noise
 
 WAYS = ("closed_loop", "replay")
 
@@ -36,7 +36,7 @@ def observed_signals(kin: pd.DataFrame) -> Observed:
     t = column(kin, "t_s", dtype=float)
     theta = column(kin, "theta_rad", dtype=float)
     omega = column(kin, "omega_rad_s", dtype=float, na_value=np.nan)
-    out = {"theta": (theta, signal_noise(theta) + timing_noise(omega, t))}
+    out = {"theta": (theta, angle_noise(theta, omega, t))}
     if "current_a" in kin.columns:
         current = column(kin, "current_a", dtype=float, na_value=np.nan)
         out["current"] = (current, signal_noise(current))
