@@ -51,8 +51,8 @@ JACOBIAN_STEP = 1e-3             # of a coefficient (a fraction of the state's t
 STATE_NAMES = ("current_a", "omega_rad_s", "delta_m")
 # A command change among the pre-log commands is a priori unlikely: the rig reverses about once
 # in 35 samples.  A change costs 2 ln 35 ~ 7 in the weighted squared residual (-2 log of its prior
-# odds), so it is chosen only when the data ask for it: a pulse of the other command during the
-# first samples and a different initial current explain the data almost equally well.
+# odds), so it is chosen only when the data ask for it (a pulse of the other command and a
+# different initial current can explain the first samples almost equally well).
 SWITCH_PENALTY = 2.0 * np.log(35.0)
 
 # name -> (measured values, noise variance); names "theta" [rad] and "current" [A, as the sensor reads]
