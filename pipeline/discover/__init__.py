@@ -4,11 +4,13 @@ The workflow (issue 6), module by module:
 
 - ``measurement``: a derived run as arrays; replay (the logged command drives the model) is what
   every fit runs on, because it is smooth in the parameters -- a closed-loop free run jumps when
-  a simulated switch slips by one control period.  Without a logged command, the inferred motor
-  start and near-guard switches are nuisances settled by the fit.
-- ``residuals``: the noise floor from the data (third differences of the residual, never below the
-  quantisation, plus the clock's share for the angle) and the localisation: where the residual
-  lives, in words, numbers and tables (per mode, binned by state, aligned on events).
+  a simulated switch slips by one control period.  The start (x0, pre-log commands) is estimated
+  per model as validation does (``pipeline.validate.initial_state``).  Without a logged command,
+  the inferred motor start and near-guard switches are nuisances settled by the fit.
+- ``residuals``: the noise floor from the recording itself (``pipeline.validate.noise``: robust
+  differences of each signal, never below the quantisation, plus the clock's share for the angle)
+  and the localisation: where the residual lives, in words, numbers and tables (per mode, binned
+  by state, aligned on events).
 - ``candidates``: every effect of ``pipeline.model.effects.CATALOGUE`` fitted for its parameter
   within its bounds (coarse geometric scan, then Brent), earlier effects refitted with it, an
   interval from the joint Gauss-Newton information (autocorrelation-corrected, widened by the

@@ -60,14 +60,11 @@ class Evaluator:
         self._cache: dict[tuple[PlantSpec, tuple], SimResult] = {}
         self.simulations = 0
         self.failures: list[str] = []
-        self._x0: dict[float, tuple[float, float, float]] = {}
         self.commands: dict[PlantSpec, np.ndarray] = {}
 
     def sim(self, effects: tuple[Effect, ...]) -> SimResult:
         spec = self.meas.spec(effects)
-        if spec.I0 not in self._x0:          # the initial state depends on the model only through I0
-            self._x0[spec.I0] = self.meas.x0(spec)
-        x0 = self._x0[spec.I0]
+        x0 = self.meas.x0(spec)              # estimated per model (the measurement caches it)
         key = (replace(spec, I0=0.0), x0)
         if key not in self._cache:
             self.simulations += 1

@@ -10,7 +10,8 @@ whose error jumps whenever a simulated switch slips by one control period.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
+from functools import cached_property
 
 import numpy as np
 import pandas as pd
@@ -18,8 +19,9 @@ import pandas as pd
 from pipeline.config import RigConfig
 from pipeline.errors import PdrError
 from pipeline.model.effects import Effect, PlantSpec
-from pipeline.model.simulate import SimResult, simulate
-from pipeline.validate.compare import initial_state
+from pipeline.model.simulate import SimResult
+from pipeline.validate.compare import observed_signals
+from pipeline.validate.initial_state import Observed, Start, StartEstimator, without_offset
 
 
 @dataclass(frozen=True)
@@ -37,6 +39,10 @@ class Measurement:
     dir: np.ndarray                 # int8 command after each sample (logged, else inferred)
     dir_source: str                 # "logged" or "inferred"
     samples_in_recording: int = 0   # > n when only the first MAX_SAMPLES are used
+    # start estimators per plant without sensor offset, and their starts per (plant, the command's
+    # first seconds, offset); shared by ``replace``d copies, hence keyed on the command too
+    _estimators: dict = field(default_factory=dict, compare=False, repr=False, hash=False)
+    _starts: dict = field(default_factory=dict, compare=False, repr=False, hash=False)
 
     @property
     def onset(self) -> int | None:
@@ -81,25 +87,42 @@ class Measurement:
         """The rig's model ([model] + [effects] of its TOML) plus ``effects``."""
         return self.config.plant_spec(tuple(effects))
 
-    def x0(self, spec: PlantSpec) -> tuple[float, float, float]:
-        """[I, w, delta] at the first sample, by validation's rule (so the MSEs agree)."""
-        return initial_state(self.kinematics, spec)
+    @cached_property
+    def observed(self) -> Observed:
+        """The fitted signals with their noise variances, from the recording (validation's numbers)."""
+        return observed_signals(self.kinematics)
+
+    def x0(self, spec: PlantSpec, dir_log: np.ndarray | None = None) -> Start:
+        """The start (x0 with its uncertainty, the pre-log commands) under ``spec``, estimated
+        from the data on the recording's own instants as validation does (so the MSEs agree)."""
+        d = self.dir if dir_log is None else dir_log
+        plant = without_offset(spec)
+        if plant not in self._estimators:
+            self._estimators[plant] = StartEstimator(plant, self.t, self.observed)
+        estimator = self._estimators[plant]
+        key = (plant, estimator.window(d), spec.I0)
+        if key not in self._starts:
+            self._starts[key] = estimator.start(d, spec.I0)
+        return self._starts[key]
 
     def simulate_ways(self, spec: PlantSpec, dir_log: np.ndarray) -> dict[str, SimResult]:
-        """Closed loop and replay at the recording's own instants, from ``x0`` (validation's two ways)."""
-        x0 = self.x0(spec)
-        dir0 = _first_dir(dir_log)
-        return {way: simulate(spec, self.t, x0=x0, dir0=dir0, dir_log=dir_log, closed_loop=way == "closed_loop")
+        """Closed loop and replay at the recording's own instants, from its start (validation's two ways)."""
+        start = self.x0(spec, dir_log)
+        return {way: start.simulate(spec, self.t, dir_log, closed_loop=way == "closed_loop")
                 for way in ("closed_loop", "replay")}
 
-    def replay(self, spec: PlantSpec, x0: tuple[float, float, float] | None = None,
+    def replay(self, spec: PlantSpec, x0: Start | tuple[float, float, float] | None = None,
                dir_log: np.ndarray | None = None, n: int | None = None) -> SimResult:
-        """The logged command (or ``dir_log``) drives the model (smooth in the parameters);
-        ``n``: only the first n samples."""
+        """The logged command (or ``dir_log``) drives the model (smooth in the parameters), from
+        the start estimated for that command (or ``x0``: a fixed state, or a start estimated for
+        this measurement's own command); ``n``: only the first n samples."""
         d = self.dir if dir_log is None else dir_log
         m = self.n if n is None else n
-        return simulate(spec, self.t_fit[:m], x0=self.x0(spec) if x0 is None else x0, dir0=_first_dir(d),
-                        dir_log=d[:m], closed_loop=False)
+        if x0 is None or (isinstance(x0, Start) and dir_log is not None and not np.array_equal(d, self.dir)):
+            start = self.x0(spec, d)        # the start depends on the command replayed (an inferred onset)
+        else:
+            start = x0 if isinstance(x0, Start) else Start.given(x0)
+        return start.simulate(spec, self.t_fit[:m], d[:m], closed_loop=False)
 
 
 
@@ -151,11 +174,6 @@ def settle_switches(meas: Measurement, nll) -> Measurement:
                 best, best_nll = trial, value
         meas = best
     return meas
-
-
-def _first_dir(d: np.ndarray) -> int:
-    nz = np.flatnonzero(d != 0)
-    return int(d[nz[0]]) if len(nz) else 1
 
 
 def _column(kin: pd.DataFrame, name: str) -> np.ndarray | None:

@@ -2,12 +2,11 @@
 
 Two things live here:
 
-* the noise floor of each signal, from the data: the third difference of a
-  residual cancels everything smooth (model error varies over ~1 s, the sample
-  spacing is 50 ms), and what is left is white noise with variance 20*sigma^2
-  (C(6,3) = 20).  A median makes the estimate blind to the few kinks at
-  switches.  It is never allowed below the quantisation floor q^2/12
-  (encoder: q = 2*pi/counts_per_rev; current: one ADC step, ~26 mA at 185 mV/A).
+* the noise floor of each signal, from the recording itself, with no model and no
+  rig settings (``pipeline.validate.noise``): a robust scale of the signal's third
+  (current) or fifth (angle) difference (everything smooth cancels, white noise
+  remains), never below the quantisation q^2/12 with q read off the data (encoder
+  count, ADC step), plus the clock's truncation for the angle;
 * signatures: where a residual concentrates, each one the fingerprint of a
   catalogued effect (MODEL.md): a bias in the current alone (sensor offset), a
   burst right after each switch (loop delay), energy near zero velocity
@@ -19,34 +18,11 @@ Two things live here:
 from __future__ import annotations
 
 from dataclasses import dataclass
-from math import comb
 
 import numpy as np
 
 from pipeline.discover.measurement import Measurement
 from pipeline.model.simulate import SimResult
-
-_MAD = 0.6744897501960817          # median |N(0,1)|
-
-
-def difference_noise(r: np.ndarray, order: int = 3) -> float:
-    """Variance of the white part of ``r``: robust scale of its ``order``-th difference."""
-    r = np.asarray(r, dtype=float)
-    r = r[np.isfinite(r)]
-    if len(r) <= order + 2:
-        return 0.0
-    d = np.diff(r, n=order)
-    sigma = np.median(np.abs(d - np.median(d))) / _MAD
-    return float(sigma * sigma / comb(2 * order, order))
-
-
-def quantisation_floor(meas: Measurement) -> dict[str, float]:
-    """q^2/12 per signal: the least any model can achieve on quantised data."""
-    cfg = meas.config
-    q_theta = 2.0 * np.pi / cfg.encoder.counts_per_rev
-    cs = cfg.current_sensor
-    q_current = cs.adc_vref / cs.adc_steps / cs.sensitivity_v_per_a
-    return {"theta": q_theta ** 2 / 12.0, "current": q_current ** 2 / 12.0}
 
 
 def residuals(meas: Measurement, sim: SimResult) -> dict[str, np.ndarray]:
@@ -57,34 +33,12 @@ def residuals(meas: Measurement, sim: SimResult) -> dict[str, np.ndarray]:
     return out
 
 
-def time_resolution(meas: Measurement) -> float:
-    """The logged clock's step [s]: 1 ms for millis(), 1 us for micros(); for seconds, the
-    smallest spacing between the distinct sample intervals (1 ms when they are all equal)."""
-    unit = meas.config.columns.time_unit
-    if unit in ("ms", "us"):
-        return 1e-3 if unit == "ms" else 1e-6
-    d = np.unique(np.round(np.diff(meas.t), 9))
-    steps = np.diff(d)
-    return float(steps.min()) if len(steps) else 1e-3
-
-
-def timing_floor(meas: Measurement) -> float:
-    """Angle error from clock truncation: the true instant lies up to one clock step after the
-    logged one, an error of w * U(0, res) with second moment w^2 res^2 / 3 (its mean, half a step,
-    shifts the whole axis, so it is structure that no model removes)."""
-    w = meas.omega[np.isfinite(meas.omega)]
-    w2 = float(np.mean(w * w)) if len(w) else 0.0
-    return w2 * time_resolution(meas) ** 2 / 3.0
-
-
-def noise_floor(meas: Measurement, sim: SimResult) -> dict[str, float]:
-    """Per-sample variance of each fitted signal that no model can remove: white noise estimated
-    on the residual of ``sim`` (at least the quantisation), plus the clock's share for the angle."""
-    quant = quantisation_floor(meas)
-    res = residuals(meas, sim)
-    floor = {s: max(difference_noise(r), quant[s]) for s, r in res.items()}
-    floor["theta"] += timing_floor(meas)
-    return floor
+def noise_floor(meas: Measurement, sim: SimResult | None = None) -> dict[str, float]:
+    """Per-sample variance of each fitted signal that no model can remove, from the recording
+    itself (``pipeline.validate.noise``: white part, at least the quantisation, plus the clock's
+    share for the angle), the numbers the start is weighted by.  The same for every model, so
+    ``sim`` is not needed (kept for callers that pass the base model's replay)."""
+    return {s: var for s, (_, var) in meas.observed.items() if s in meas.signals}
 
 
 # ---------------------------------------------------------------- signatures

@@ -3,9 +3,7 @@
 Pure core (``discover``: kinematics + rig config -> ``Discovery``), imperative
 shell (``discover_run``: a processed run folder -> files in an output folder).
 The MSEs before/after are validation's measures (``metrics.signal_errors``, closed
-loop and replay at the recording's instants); the initial state differs only when the
-recording starts with the motor off, where discovery takes the current as zero rather
-than a noisy first reading (which would persist for La/Ra = 7 s).
+loop and replay at the recording's instants, from the start validation estimates).
 """
 
 from __future__ import annotations

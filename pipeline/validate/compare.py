@@ -23,39 +23,34 @@ import pandas as pd
 from pipeline.columns import column
 from pipeline.derive.energy import run_energy
 from pipeline.model.effects import PlantSpec
-from pipeline.model.simulate import SimResult, simulate
+from pipeline.model.simulate import SimResult
+from pipeline.validate.initial_state import Observed, Start, estimate_start
 from pipeline.validate.metrics import signal_errors
+from pipeline.validate.noise import angle_noise, signal_noise
 
 WAYS = ("closed_loop", "replay")
 
-# At-rest test for the first sample: below these the recording is taken to
-# start at rest (x(0) = 0 apart from the angle, MODEL.md) rather than feeding
-# sensor noise into the initial current, which would persist for La/Ra = 7 s.
-REST_OMEGA_RAD_S = 0.1      # ~5 encoder counts per 50 ms sample at 6533 counts/rev
-REST_CURRENT_A = 0.08       # ~3 ADC steps of an ACS712-05B (26 mA each)
 
-
-def initial_state(kin: pd.DataFrame, spec: PlantSpec) -> tuple[float, float, float]:
-    """x0 = [I, w, delta] from the first sample of the recording.
-
-    With the motor off there (dir = 0: the sketch is not driving yet) the pinion is at
-    rest and the current is zero whatever the noisy sensor reads; otherwise a first
-    sample within the rest thresholds is taken as rest too, so one noisy current reading
-    does not persist for La/Ra = 7 s.  Validation and discovery share this rule, so
-    their MSEs are the same numbers.
-    """
-    theta0 = float(kin["theta_rad"].iloc[0])
-    if "dir" in kin.columns and int(kin["dir"].iloc[0]) == 0:
-        return (0.0, 0.0, theta0 * spec.params.R)
+def observed_signals(kin: pd.DataFrame) -> Observed:
+    """The logged signals the start is fitted to, each with its noise variance from the recording."""
+    t = column(kin, "t_s", dtype=float)
+    theta = column(kin, "theta_rad", dtype=float)
     omega = column(kin, "omega_rad_s", dtype=float, na_value=np.nan)
-    finite = omega[np.isfinite(omega)]
-    omega0 = float(finite[0]) if len(finite) else 0.0
-    current0 = 0.0
+    out = {"theta": (theta, angle_noise(theta, omega, t))}
     if "current_a" in kin.columns:
-        current0 = float(kin["current_a"].iloc[0]) - spec.I0
-    if abs(omega0) < REST_OMEGA_RAD_S and abs(current0) < REST_CURRENT_A:
-        omega0, current0 = 0.0, 0.0
-    return (current0, omega0, theta0 * spec.params.R)
+        current = column(kin, "current_a", dtype=float, na_value=np.nan)
+        out["current"] = (current, signal_noise(current))
+    return out
+
+
+def initial_state(kin: pd.DataFrame, spec: PlantSpec) -> Start:
+    """x0 = [I, w, delta] at the first sample and the pre-log commands, estimated under ``spec``.
+
+    No at-rest rule: a recording may open mid-motion, and one noisy first reading would
+    persist for La/Ra = 7 s; the first seconds pin the start down (``initial_state.py``).
+    Validation and discovery share this estimate, so their MSEs are the same numbers.
+    """
+    return estimate_start(spec, column(kin, "t_s", dtype=float), logged_dir(kin), observed_signals(kin))
 
 
 def logged_dir(kin: pd.DataFrame) -> np.ndarray:
@@ -63,17 +58,12 @@ def logged_dir(kin: pd.DataFrame) -> np.ndarray:
     return column(kin, "dir", dtype=np.int8)
 
 
-def simulate_both(spec: PlantSpec, kin: pd.DataFrame) -> dict[str, SimResult]:
-    """Closed loop and replay at the recording's own sample instants, from its initial state."""
+def simulate_both(spec: PlantSpec, kin: pd.DataFrame, start: Start | None = None) -> dict[str, SimResult]:
+    """Closed loop and replay at the recording's own sample instants, from its estimated start."""
     t = column(kin, "t_s", dtype=float)
     d = logged_dir(kin)
-    x0 = initial_state(kin, spec)
-    nz = d[d != 0]
-    dir0 = int(nz[0]) if len(nz) else 1
-    return {
-        "closed_loop": simulate(spec, t, x0=x0, dir0=dir0, dir_log=d, closed_loop=True),
-        "replay": simulate(spec, t, x0=x0, dir0=dir0, dir_log=d, closed_loop=False),
-    }
+    start = initial_state(kin, spec) if start is None else start
+    return {way: start.simulate(spec, t, d, closed_loop=way == "closed_loop") for way in WAYS}
 
 
 def switch_indices(d: np.ndarray) -> np.ndarray:

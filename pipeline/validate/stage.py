@@ -140,7 +140,7 @@ def validate_run(paths: RunPaths, model_override: ModelOverride = None, *, rrd: 
         "run": paths.name, "model": _model_json(spec, source),
         "n_samples": int(len(kin)), "duration_s": float(kin["t_s"].iloc[-1] - kin["t_s"].iloc[0]),
         "dir_inferred": bool(kin["dir_inferred"].any()) if "dir_inferred" in kin.columns else False,
-        "initial_state": dict(zip(("current_a", "omega_rad_s", "delta_m"), initial_state(kin, spec))),
+        "initial_state": initial_state(kin, spec).to_json(),
         **result,
     })
     t3 = time.perf_counter()

@@ -7,9 +7,10 @@ import pytest
 from pipeline.config import default_config
 from pipeline.discover.candidates import autocorrelation_time, folds_by_cycle
 from pipeline.discover.measurement import measurement_from_kinematics
-from pipeline.discover.residuals import describe, difference_noise, noise_floor, signatures
+from pipeline.discover.residuals import describe, noise_floor, signatures
 from pipeline.errors import PdrError
 from pipeline.model.simulate import simulate
+from pipeline.validate.noise import difference_noise
 
 
 def test_difference_noise_sees_white_noise_through_a_smooth_signal():
@@ -26,10 +27,13 @@ def test_autocorrelation_time_is_one_for_white_and_large_for_smooth():
     assert autocorrelation_time(np.sin(np.arange(2000) * 0.01)) > 20
 
 
-def _kinematics(spec, current_offset=0.0):
+def _kinematics(spec, current_offset=0.0, counts_per_rev=None):
     t = np.arange(500) * 0.05
     sim = simulate(spec, t)
-    return pd.DataFrame({"t_s": t, "theta_rad": sim.theta, "omega_rad_s": sim.omega,
+    theta = sim.theta
+    if counts_per_rev is not None:          # what an encoder reports
+        theta = np.round(theta * counts_per_rev / (2 * np.pi)) * 2 * np.pi / counts_per_rev
+    return pd.DataFrame({"t_s": t, "theta_rad": theta, "omega_rad_s": sim.omega,
                          "current_a": sim.current + current_offset, "dir": sim.dir,
                          "dir_inferred": np.zeros(len(t), dtype=bool)})
 
@@ -45,7 +49,8 @@ def test_folds_hold_both_directions_and_cover_every_sample():
 
 def test_floor_is_at_least_the_quantisation_and_localisation_names_a_current_bias():
     cfg = default_config()
-    meas = measurement_from_kinematics(_kinematics(cfg.plant_spec(), current_offset=0.06), cfg, "x")
+    kin = _kinematics(cfg.plant_spec(), current_offset=0.06, counts_per_rev=cfg.encoder.counts_per_rev)
+    meas = measurement_from_kinematics(kin, cfg, "x")
     sim = meas.replay(meas.spec())
     floor = noise_floor(meas, sim)
     q = 2 * np.pi / cfg.encoder.counts_per_rev

@@ -1,0 +1,389 @@
+"""Where a recording starts: the initial state and the commands the motor is under, from the data.
+
+A recording may open anywhere: logging started while the rig ran, a segment after a board
+reset, a sketch whose first current reading is three noise sigmas off.  The state
+x0 = [I, w, delta] at the first sample, the command in force there and, under a loop delay
+Td, the commands decided before the first sample and still on their way to the motor are
+nuisance parameters (shared/MODEL.md).  One noisy first sample says little about them; the
+first seconds say a lot.  The replayed response of a linear plant is affine in x0 and in
+each pre-log command, so superposed simulations (one per unit initial state, one per
+pre-log command, one for the logged commands) make the estimate a weighted linear least-
+squares problem, as MATLAB's ``findstates`` does, with its covariance.  The commands are
+-1, 0 or +1: every plausible pre-log sequence is tried and the most probable kept.  A plant with
+Coulomb friction or backlash is not affine; its estimate is refined from the superposed one
+by a few Gauss-Newton steps on the full simulation (forward-difference Jacobians), unless one
+simulation shows the plant stayed affine over the window (no stick, no dead zone crossed).  Signals are weighted by their own noise (``noise.signal_noise``), or by their misfit
+where the model misses by more.
+
+The pre-log commands enter the simulator as samples before the first one: the command
+decided at t0 - Td reaches the motor at t0 (the command in force at the first sample),
+those decided at t0 - j*T (j*T < Td, T the control period) arrive during the first Td.
+Between the first of these instants and t0 nothing has arrived, so the motor is off and
+the state there, ``z``, moves freely into x0.  Without a loop delay the command in force
+before the first sample acts only before it, and x0 alone is estimated.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass, fields, replace
+
+import numpy as np
+
+from pipeline.model.effects import PlantSpec
+from pipeline.model.simulate import SimResult, simulate
+
+# Samples the estimate uses: the first 2 s (at least 20 samples).  x0 shows most there (the rig's
+# oscillatory mode decays in ~1.2 s) and a model error has had little time to grow.  A model
+# missing a constant torque takes it up as an initial current, which a sensor offset may then
+# "explain": of six such virtual-rig recordings, one was misnamed with a 1 s window, one with 5 s,
+# none with 2 s.  With the right model, 1, 2 and 5 s gave x0 within 0.6 mA and 0.01 rad/s of the
+# truth alike.
+WINDOW_S = 2.0
+WINDOW_MIN_SAMPLES = 20
+WINDOW_SAMPLES = 1200
+# Typical sizes of [I, w, delta] (A, rad/s, m): the unit responses are simulated at these
+# amplitudes so the least-squares columns are of comparable size.
+STATE_SCALES = np.array([0.1, 1.0, 0.01])
+REWEIGHTS = 3                    # reweightings by the misfit (stopped once the variances settle)
+REFINE_STEPS = 3                 # Gauss-Newton steps for a plant that is not affine in x0
+JACOBIAN_STEP = 1e-3             # of a coefficient (a fraction of the state's typical size)
+STATE_NAMES = ("current_a", "omega_rad_s", "delta_m")
+# A command change among the pre-log commands is a priori unlikely: the rig reverses about once
+# in 35 samples.  A change costs 2 ln 35 ~ 7 in the weighted squared residual (-2 log of its prior
+# odds), so it is chosen only when the data ask for it (a pulse of the other command and a
+# different initial current can explain the first samples almost equally well).
+SWITCH_PENALTY = 2.0 * np.log(35.0)
+
+# name -> (measured values, noise variance); names "theta" [rad] and "current" [A, as the sensor reads]
+Observed = dict[str, tuple[np.ndarray, float]]
+
+
+@dataclass(frozen=True)
+class Start:
+    """The estimated start of a recording; hashable, so fits can key caches on it."""
+
+    x0: tuple[float, float, float]          # [I A, w rad/s, delta m] at the first sample
+    sigma: tuple[float, float, float]       # their 1-sigma uncertainty
+    lead_s: tuple[float, ...] = ()          # when the pre-log commands were decided, s relative to t0 (< 0)
+    commands: tuple[int, ...] = ()          # those commands: the one in force at t0, then those in flight
+    z: tuple[float, float, float] | None = None   # state at the first lead instant (x0 without a lead)
+
+    @classmethod
+    def given(cls, x0: tuple[float, float, float]) -> "Start":
+        """A start known exactly (a simulation from rest, a test)."""
+        return cls(x0=tuple(map(float, x0)), sigma=(0.0, 0.0, 0.0))
+
+    def simulate(self, spec: PlantSpec, t: np.ndarray, dir_log: np.ndarray, *, closed_loop: bool) -> SimResult:
+        """``simulate`` from this start at the instants ``t`` (replay, or closed loop after the log's start)."""
+        t = np.asarray(t, dtype=float)
+        log = np.concatenate([np.asarray(self.commands, dtype=np.int8), np.asarray(dir_log, dtype=np.int8)])
+        t_all = np.concatenate([t[0] + np.asarray(self.lead_s, dtype=float), t])
+        z = self.x0 if self.z is None else self.z
+        sim = simulate(spec, t_all, x0=z, dir0=first_dir(log), dir_log=log, closed_loop=closed_loop)
+        return drop_lead(sim, len(self.lead_s))
+
+    def to_json(self) -> dict:
+        """What ``validation.json`` reports: x0 with its 1-sigma, and the pre-log commands."""
+        return {**{k: float(v) for k, v in zip(STATE_NAMES, self.x0)},
+                "sigma": {k: float(v) for k, v in zip(STATE_NAMES, self.sigma)},
+                "pre_log_commands": [{"decided_s": float(s), "dir": int(c)}
+                                     for s, c in zip(self.lead_s, self.commands)],
+                "method": "least squares over the first samples (superposed simulations), "
+                          "signals weighted by their noise"}
+
+
+def first_dir(d: np.ndarray) -> int:
+    """The first non-zero command (1 when there is none): the mode a closed loop starts in."""
+    nz = np.flatnonzero(np.asarray(d) != 0)
+    return int(d[nz[0]]) if len(nz) else 1
+
+
+def drop_lead(sim: SimResult, m: int) -> SimResult:
+    """The result without its first ``m`` samples (the pre-log instants)."""
+    if m == 0:
+        return sim
+    return replace(sim, **{f.name: getattr(sim, f.name)[m:] for f in fields(sim)
+                           if isinstance(getattr(sim, f.name), np.ndarray)})
+
+
+def lead_offsets(delay_s: float, period_s: float) -> np.ndarray:
+    """Instants (relative to t0, < 0) of the pre-log commands that reach the motor after t0."""
+    if delay_s <= 0.0:
+        return np.zeros(0)
+    js = [j for j in range(1, int(np.ceil(delay_s / period_s)) + 1) if j * period_s < delay_s - 1e-9]
+    return np.array([-delay_s] + [-j * period_s for j in sorted(js, reverse=True)])
+
+
+def command_sequences(m: int) -> list[tuple[int, ...]]:
+    """Pre-log command sequences worth trying: one value, then perhaps another (at most one
+    change of command within a loop delay: the rig reverses every ~1.7 s)."""
+    if m == 0:
+        return [()]
+    out = {(a,) * k + (b,) * (m - k) for a, b in itertools.product((-1, 0, 1), repeat=2) for k in range(m + 1)}
+    return sorted(out)
+
+
+def _window(t: np.ndarray) -> int:
+    n = max(int(np.searchsorted(t, t[0] + WINDOW_S, side="right")), WINDOW_MIN_SAMPLES)
+    return min(n, WINDOW_SAMPLES, len(t))
+
+
+def _state(sim: SimResult, k: int) -> np.ndarray:
+    return np.array([sim.current[k], sim.omega[k], sim.delta[k]])
+
+
+class _Problem:
+    """The observations over the window, the model's outputs on them and the weights.
+
+    ``spec`` is the plant without its current-sensor offset; ``I0`` is added to the modelled
+    current here, so one set of simulations serves every offset."""
+
+    def __init__(self, spec: PlantSpec, t: np.ndarray, observed: Observed) -> None:
+        self.n = n = _window(t)
+        self.spec = spec
+        self.I0 = 0.0
+        self.lead = lead_offsets(float(spec.Td), float(spec.period_s))
+        self.m = len(self.lead)
+        self.t = np.concatenate([t[0] + self.lead, t[:n]])
+        self.log = np.zeros(n, dtype=np.int8)          # the logged command, set per estimate
+        self.names = [s for s in ("theta", "current") if s in observed]
+        ys, ok, which = [], [], []
+        for i, s in enumerate(self.names):
+            y = np.asarray(observed[s][0][:n], dtype=float)
+            ys.append(np.where(np.isfinite(y), y, 0.0))
+            ok.append(np.isfinite(y))
+            which.append(np.full(len(y), i))
+        self.y = np.concatenate(ys)
+        self.ok = np.concatenate(ok)
+        self.which = np.concatenate(which)
+        self.noise = np.array([max(float(observed[s][1]), 1e-30) for s in self.names])
+        self.current_rows = (np.array(self.names) == "current")[self.which].astype(float)
+
+    def run(self, z, commands, *, logged: bool = True) -> SimResult:
+        """Replay from ``z`` under the pre-log ``commands`` and (``logged``) the logged ones, else motor off."""
+        log = np.concatenate([np.asarray(commands, dtype=np.int8), self.log if logged else np.zeros_like(self.log)])
+        return simulate(self.spec, self.t, x0=tuple(z), dir0=first_dir(log), dir_log=log, closed_loop=False)
+
+    def outputs(self, sim: SimResult, measured: bool = True) -> np.ndarray:
+        """Model outputs at the real samples (``measured``: the current as the sensor reads it, + I0)."""
+        m = self.m
+        cols = {"theta": sim.theta[m:], "current": sim.current[m:]}
+        out = np.concatenate([cols[s] for s in self.names])
+        return out + self.I0 * self.current_rows if measured else out
+
+    def weights(self, variances: np.ndarray) -> np.ndarray:
+        return np.where(self.ok, 1.0 / np.sqrt(variances[self.which]), 0.0)
+
+    def variances(self, r: np.ndarray) -> np.ndarray:
+        """Per signal: its noise, or its mean-square misfit when the model misses by more (a
+        model error in the angle then does not buy a wrong current)."""
+        out = self.noise.copy()
+        for i in range(len(self.names)):
+            sel = self.ok & (self.which == i)
+            if sel.any():
+                out[i] = max(out[i], float(np.mean(r[sel] ** 2)))
+        return out
+
+    def score(self, variances: np.ndarray) -> float:
+        """The concentrated negative log-likelihood, sum over signals of n_s log(variance_s)."""
+        counts = np.array([np.count_nonzero(self.ok & (self.which == i)) for i in range(len(self.names))])
+        return float(np.sum(counts * np.log(variances)))
+
+    @property
+    def dof(self) -> int:
+        return int(np.count_nonzero(self.ok))
+
+
+def _residual_scale(r: np.ndarray, dof: int) -> float:
+    """Variance factor of the weighted residual: its mean square per degree of freedom (model
+    error and a misjudged noise widen the interval, never narrow it), times (1 + rho)/(1 - rho)
+    for its lag-1 autocorrelation rho (quantisation of a slow signal and model error are not
+    white, so neighbouring samples carry less than independent ones)."""
+    r = r[r != 0.0]
+    if len(r) < 3:
+        return 1.0
+    rho = float(np.clip(np.dot(r[1:], r[:-1]) / np.dot(r, r), 0.0, 0.95))
+    return max(1.0, float(np.dot(r, r)) / max(dof - 3, 1)) * (1.0 + rho) / (1.0 - rho)
+
+
+def changes(commands: tuple[int, ...], first: int) -> int:
+    """How often the command changes along the pre-log ``commands`` and into the first logged one."""
+    seq = (*commands, first)
+    return sum(a != b for a, b in zip(seq[:-1], seq[1:]))
+
+
+def _fit_commands(r0: np.ndarray, F: np.ndarray, P: np.ndarray, w: np.ndarray, m: int,
+                  first: int) -> list[tuple[float, tuple[int, ...], np.ndarray]]:
+    """(cost, pre-log commands, coefficients) of every sequence under weights ``w``, most probable
+    first; the cost is the weighted squared residual plus the prior's ``SWITCH_PENALTY`` per change."""
+    Fw = F * w[:, None]
+    normal = Fw.T @ Fw
+    inverse = np.linalg.pinv(normal)
+    out = []
+    for c in command_sequences(m):
+        target = (r0 - P @ np.asarray(c, dtype=float)) * w if m else r0 * w
+        rhs = Fw.T @ target
+        a = inverse @ rhs
+        cost = float(target @ target - rhs @ a) + SWITCH_PENALTY * changes(c, first)
+        out.append((cost, c, a))
+    return sorted(out, key=lambda item: item[0]) if m else out
+
+
+def _spread(fits: list, Phi: np.ndarray, scale: float) -> np.ndarray:
+    """Covariance of x0 across the command sequences, weighted by their posterior probability:
+    a switch in flight and a different initial current can explain the first samples almost
+    equally well, and the interval must say so."""
+    costs = np.array([f[0] for f in fits])
+    p = np.exp(-(costs - costs[0]) / (2.0 * scale))
+    p /= p.sum()
+    x = np.array([Phi @ f[2] for f in fits])
+    d = x - x[0]
+    return (d * p[:, None]).T @ d
+
+
+def _jacobian(p: _Problem, a: np.ndarray, commands) -> np.ndarray:
+    """d(outputs)/d(coefficients) of the full simulation at ``a``, by forward differences."""
+    at = p.outputs(p.run(a * STATE_SCALES, commands))
+    cols = []
+    for i in range(3):
+        h = np.zeros(3)
+        h[i] = JACOBIAN_STEP
+        cols.append((p.outputs(p.run((a + h) * STATE_SCALES, commands)) - at) / JACOBIAN_STEP)
+    return np.column_stack(cols)
+
+
+def _gauss_newton(p: _Problem, a: np.ndarray, commands,
+                  w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A few Gauss-Newton steps (the Jacobian taken afresh at each: stick/slip bends the
+    response), each halved until the weighted cost drops; returns (a, residual, Jacobian)."""
+    residual = p.y - p.outputs(p.run(a * STATE_SCALES, commands))
+    cost = float(np.sum((residual * w) ** 2))
+    for _ in range(REFINE_STEPS):
+        J = _jacobian(p, a, commands)
+        Jw = J * w[:, None]
+        step = np.linalg.lstsq(Jw, residual * w, rcond=None)[0]
+        for _ in range(4):
+            trial = a + step
+            r = p.y - p.outputs(p.run(trial * STATE_SCALES, commands))
+            c = float(np.sum((r * w) ** 2))
+            if c < cost:
+                break
+            step = step / 2.0
+        else:
+            break
+        gain = (cost - c) / max(cost, 1e-300)
+        a, residual, cost = trial, r, c
+        if gain < 1e-6:
+            break
+    return a, residual, _jacobian(p, a, commands)
+
+
+def _first_weights(p: _Problem) -> list[np.ndarray]:
+    """Where the reweighting starts: every signal at its noise, and the angle alone (a model that
+    misses the current by far more than its noise must not drag the angle after it)."""
+    starts = [p.noise]
+    if "current" in p.names and "theta" in p.names:
+        starts.append(np.where(np.array(p.names) == "theta", p.noise, np.inf))
+    return starts
+
+
+class StartEstimator:
+    """The simulations a start estimate needs, for one plant without its current-sensor offset:
+    the responses to unit initial states and to each pre-log command do not depend on the logged
+    command, so they are simulated once; each command then costs one replay, and a sensor offset
+    none (it only moves the measured current)."""
+
+    def __init__(self, spec: PlantSpec, t: np.ndarray, observed: Observed) -> None:
+        p = _Problem(spec, np.asarray(t, dtype=float), observed)
+        zeros = np.zeros(p.m, dtype=np.int8)
+        free = []
+        for i in range(3):
+            z = np.zeros(3)
+            z[i] = STATE_SCALES[i]
+            free.append(p.run(z, zeros, logged=False))
+        self.F = np.column_stack([p.outputs(s, measured=False) for s in free])
+        self.Phi = np.column_stack([_state(s, p.m) for s in free])        # x0 per unit coefficient
+        pulses = []
+        for j in range(p.m):
+            c = zeros.copy()
+            c[j] = 1
+            pulses.append(p.outputs(p.run((0.0, 0.0, 0.0), c, logged=False), measured=False))
+        self.P = np.column_stack(pulses) if pulses else np.zeros((len(p.y), 0))
+        self.p = p
+        self._base: dict[bytes, np.ndarray] = {}
+
+    def _nearly_affine(self, a: np.ndarray, commands, predicted: np.ndarray, w: np.ndarray) -> bool:
+        """Whether the full simulation from the superposed estimate misses by no more than the
+        superposition predicted (+5 %): Coulomb friction that never sticks in the window, a dead
+        zone never crossed.  One simulation instead of a Gauss-Newton refinement."""
+        p = self.p
+        full = p.y - p.outputs(p.run(a * STATE_SCALES, commands))
+        return float(np.sum((full * w) ** 2)) <= 1.05 * float(np.sum((predicted * w) ** 2)) + 1.0
+
+    def window(self, dir_log: np.ndarray) -> bytes:
+        """The part of a command sequence the estimate sees (a cache key)."""
+        return np.asarray(dir_log[:self.p.n], dtype=np.int8).tobytes()
+
+    def start(self, dir_log: np.ndarray, I0: float = 0.0) -> Start:
+        """x0, its covariance and the pre-log commands under ``dir_log`` and sensor offset ``I0``.
+
+        Signals are weighted by their noise or their misfit, whichever is larger, reweighted a
+        few times from two starts (``_first_weights``); the start with the better concentrated
+        likelihood (the measure discovery scores with, one variance per signal) wins.
+        """
+        p = self.p
+        key = self.window(dir_log)
+        p.log = np.frombuffer(key, dtype=np.int8).copy()
+        if key not in self._base:
+            self._base[key] = p.y - p.outputs(p.run((0.0, 0.0, 0.0), np.zeros(p.m, dtype=np.int8)), measured=False)
+        p.I0 = float(I0)
+        r0 = self._base[key] - p.I0 * p.current_rows
+        F, P, Phi = self.F, self.P, self.Phi
+        best = None
+        for variances in _first_weights(p):
+            for _ in range(REWEIGHTS):
+                fits = _fit_commands(r0, F, P, p.weights(variances), p.m, int(p.log[0]))
+                _, commands, a = fits[0]
+                residual = r0 - P @ np.asarray(commands, dtype=float) - F @ a
+                previous, variances = variances, p.variances(residual)
+                if np.allclose(variances, previous, rtol=0.1):
+                    break
+            score = p.score(variances)
+            if best is None or score < best[0]:
+                best = (score, fits, variances)
+            if np.all(variances <= 4.0 * p.noise):       # the model fits every signal: nothing to guard against
+                break
+        _, fits, variances = best
+        _, commands, a = fits[0]
+        w = p.weights(variances)
+        J = F
+        if p.spec.is_linear or self._nearly_affine(a, commands, residual, w):
+            x0 = Phi @ a
+        else:
+            # not affine in x0 (Coulomb friction, backlash): Gauss-Newton on the full simulation
+            # from the superposed estimate, reweighted by the misfit it leaves
+            for _ in range(2):
+                a, residual, J = _gauss_newton(p, a, commands, w)
+                previous, variances = variances, p.variances(residual)
+                w = p.weights(variances)
+                if np.allclose(variances, previous, rtol=0.1):
+                    break
+            x0 = _state(p.run(a * STATE_SCALES, commands), p.m)
+        Jw = J * w[:, None]
+        scale = _residual_scale(residual * w, p.dof)
+        cov_x = Phi @ (scale * np.linalg.pinv(Jw.T @ Jw)) @ Phi.T + _spread(fits, Phi, scale)
+        sigma = np.sqrt(np.clip(np.diag(cov_x), 0.0, None))
+        return Start(x0=tuple(float(v) for v in x0), sigma=tuple(float(v) for v in sigma),
+                     lead_s=tuple(float(v) for v in p.lead), commands=tuple(int(c) for c in commands),
+                     z=tuple(float(v) for v in a * STATE_SCALES))
+
+
+def without_offset(spec: PlantSpec) -> PlantSpec:
+    """The plant with its current-sensor offset removed (what ``StartEstimator`` simulates)."""
+    return replace(spec, I0=0.0)
+
+
+def estimate_start(spec: PlantSpec, t: np.ndarray, dir_log: np.ndarray, observed: Observed) -> Start:
+    """x0, its covariance and the pre-log commands that best explain the first samples under ``spec``."""
+    return StartEstimator(without_offset(spec), t, observed).start(np.asarray(dir_log), spec.I0)

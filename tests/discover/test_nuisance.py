@@ -1,0 +1,64 @@
+"""Discovery on virtual-rig recordings whose start and noise it was not tuned on (issue 15, items 1-2).
+
+Each recording goes through the rig's own plant and sensor chain, a CSV + TOML, ingest and
+derive.  The start is a nuisance: logging opened while the rig was running, a first current
+reading three sigmas off under three times the sensor noise, a reversed command still on its
+way to the motor under a 100 ms loop delay.  The noise floor comes from the recording, so the
+verdicts hold on a noisier sensor and on the 100 mV/A and 66 mV/A parts.
+"""
+
+import pytest
+
+from pipeline.discover.stage import discover
+from pipeline.model.effects import make_effect
+from tests.validate.rig_cases import SHIPPED_NOISE_V, rig_case, sensor_config
+
+pytestmark = pytest.mark.slow
+
+VISCOUS = make_effect("viscous_friction", {"b": 7.7e-4})
+
+
+def _found(d) -> dict[str, float]:
+    return {e.name: next(iter(e.parameters.values())) for e in d.effects}
+
+
+def test_logging_opened_while_the_rig_ran_is_clean(tmp_path):
+    kin, cfg, truth = rig_case(open_s=6.3, work=tmp_path)
+    assert abs(truth["omega_rad_s"].iloc[0]) > 0.5                  # mid-motion at the first sample
+    d = discover(kin, cfg, "late")
+    assert d.verdict == "none", _found(d)
+
+
+def test_logging_opened_while_the_rig_ran_names_only_the_hidden_effect(tmp_path):
+    kin, cfg, _ = rig_case((VISCOUS,), open_s=7.2, work=tmp_path)
+    d = discover(kin, cfg, "late-viscous")
+    assert d.verdict == "explained" and list(_found(d)) == ["viscous_friction"]
+    assert _found(d)["viscous_friction"] == pytest.approx(7.7e-4, rel=0.02)
+
+
+def test_a_noisy_first_current_sample_is_not_an_effect(tmp_path):
+    kin, cfg, truth = rig_case((VISCOUS,), pre_roll_s=0.0, noise_v=3 * SHIPPED_NOISE_V, first_adc_shift=15,
+                               work=tmp_path)
+    assert truth["current_a"].iloc[0] == 0.0 and kin["current_a"].iloc[0] > 0.2   # ~3 sigma of 3x the noise
+    d = discover(kin, cfg, "noisy-first")
+    assert d.verdict == "explained" and list(_found(d)) == ["viscous_friction"]
+    assert _found(d)["viscous_friction"] == pytest.approx(7.7e-4, rel=0.02)
+
+
+def test_a_command_in_flight_under_a_loop_delay_leaves_no_start_transient(tmp_path):
+    kin, cfg, _ = rig_case((make_effect("loop_delay", {"Td": 0.1}),), after_switch=1, seed=2, work=tmp_path)
+    d = discover(kin, cfg, "in-flight")
+    assert d.verdict == "explained" and list(_found(d)) == ["loop_delay"]
+    assert _found(d)["loop_delay"] == pytest.approx(0.1, rel=0.02)
+    start = d.meas.x0(d.meas.spec(d.effects), d.selection.command_after)
+    assert len(start.commands) == 2                                  # in force at t0, and one in flight
+
+
+@pytest.mark.parametrize("effect, sensitivity", [(None, 0.066), (VISCOUS, 0.100)])
+def test_verdicts_hold_on_four_times_the_noise_and_coarser_current_sensors(tmp_path, effect, sensitivity):
+    effects = () if effect is None else (effect,)
+    kin, cfg, _ = rig_case(effects, config=sensor_config(sensitivity), seed=5, noise_v=4 * SHIPPED_NOISE_V,
+                           work=tmp_path)
+    d = discover(kin, cfg, "noisy")
+    assert list(_found(d)) == [e.name for e in effects]
+    assert d.verdict == ("explained" if effects else "none")

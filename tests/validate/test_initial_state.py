@@ -1,0 +1,113 @@
+"""The start of a recording, estimated from the data: x0 with its uncertainty, and the pre-log commands."""
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from pipeline.config import default_config
+from pipeline.model.effects import make_effect
+from pipeline.model.simulate import sample_times, simulate
+from pipeline.validate.compare import initial_state, simulate_both
+from pipeline.validate.initial_state import Start, command_sequences, lead_offsets
+from tests.validate.synthetic import AMPS_PER_STEP, COUNTS_PER_REV, synthetic_run
+
+CFG = default_config()
+COUNT = 2 * np.pi / COUNTS_PER_REV
+
+
+def _opened_at(spec, cut: int, *, noise_a: float = AMPS_PER_STEP, seed: int = 0):
+    """A closed-loop run from rest, seen through the encoder and a noisy 10-bit current sensor,
+    whose log opens at sample ``cut``: (kinematics, true x0 there, the true run)."""
+    t = sample_times(24.95, spec.period_s)
+    sim = simulate(spec, t)
+    rng = np.random.default_rng(seed)
+    theta = np.round(sim.theta / COUNT) * COUNT
+    current = np.round((sim.current_measured + noise_a * rng.standard_normal(len(t))) / AMPS_PER_STEP) * AMPS_PER_STEP
+    omega = np.concatenate([[0.0], np.diff(theta) / np.diff(t)])
+    kin = pd.DataFrame({"t_s": t, "theta_rad": theta, "omega_rad_s": omega, "current_a": current,
+                        "dir": sim.dir.astype(np.int8), "dir_inferred": False}).iloc[cut:].reset_index(drop=True)
+    kin["t_s"] -= kin["t_s"].iloc[0]
+    return kin, np.array([sim.current[cut], sim.omega[cut], sim.delta[cut]]), sim
+
+
+def _switches(d: np.ndarray) -> np.ndarray:
+    return np.flatnonzero((d[1:] != d[:-1]) & (d[:-1] != 0)) + 1
+
+
+def test_a_recording_opened_mid_motion_starts_where_the_rig_was():
+    spec = CFG.plant_spec()
+    kin, truth, _ = _opened_at(spec, 137)
+    assert abs(kin["current_a"].iloc[0]) > 0.08 or abs(kin["omega_rad_s"].iloc[0]) > 0.1   # not at rest
+    start = initial_state(kin, spec)
+    err = np.abs(np.array(start.x0) - truth)
+    assert np.all(err <= np.array([3e-3, 0.02, 2e-5]))              # 3 mA, 0.02 rad/s, a fifth of a count
+    assert np.all(np.array(start.sigma) > 0)
+    assert np.all(err <= 3 * np.array(start.sigma) + np.array([1e-4, 1e-3, 1e-6]))
+    assert start.commands == ()                                      # no loop delay: nothing in flight
+
+
+def test_a_noisy_first_current_reading_does_not_become_the_initial_current():
+    spec = CFG.plant_spec()
+    kin, truth, _ = _opened_at(spec, 0, noise_a=3 * AMPS_PER_STEP, seed=2)
+    kin.loc[0, "current_a"] = 0.25                                   # three sigmas of 3x the sensor noise
+    start = initial_state(kin, spec)
+    assert truth[0] == 0.0
+    assert abs(start.x0[0]) < 0.02
+    replay = simulate_both(spec, kin, start)["replay"]
+    assert np.sqrt(np.mean((replay.theta - kin["theta_rad"]) ** 2)) < 2 * COUNT
+
+
+def test_pre_log_commands_fill_the_loop_delay():
+    assert lead_offsets(0.0, 0.05).size == 0
+    np.testing.assert_allclose(lead_offsets(0.1, 0.05), [-0.1, -0.05])
+    np.testing.assert_allclose(lead_offsets(0.13, 0.05), [-0.13, -0.1, -0.05])
+    assert len(command_sequences(2)) == 9 and len(command_sequences(0)) == 1
+    assert all(sum(a != b for a, b in zip(c[:-1], c[1:])) <= 1 for c in command_sequences(5))
+
+
+@pytest.mark.parametrize("after", [1, 3])
+def test_commands_in_flight_under_a_loop_delay_are_estimated(after):
+    spec = CFG.plant_spec((make_effect("loop_delay", {"Td": 0.1}),))
+    t = sample_times(24.95, spec.period_s)
+    d = simulate(spec, t).dir
+    cut = int(_switches(d)[3] + after)
+    kin, truth, sim = _opened_at(spec, cut, seed=5)
+    start = initial_state(kin, spec)
+    in_flight = tuple(int(v) for v in sim.dir[cut - 2:cut])
+    if after == 3:                                                   # nothing reversed in flight: unambiguous
+        assert start.commands == in_flight
+        assert np.all(np.abs(np.array(start.x0) - truth) <= np.array([3e-3, 0.02, 2e-5]))
+    # a reversal in flight and a different initial current explain the first samples almost
+    # equally well: whichever is chosen, the interval covers the truth and both ways fit
+    assert np.all(np.abs(np.array(start.x0) - truth) <= 3 * np.array(start.sigma) + np.array([1e-3, 0.01, 1e-5]))
+    sims = simulate_both(spec, kin, start)
+    first = slice(0, 40)                                             # two seconds
+    for way in ("replay", "closed_loop"):
+        assert np.sqrt(np.mean((sims[way].theta[first] - kin["theta_rad"][first]) ** 2)) < 2 * COUNT
+    at_rest = Start.given((0.0, 0.0, float(kin["theta_rad"].iloc[0]) * spec.params.R))
+    naive = at_rest.simulate(spec, kin["t_s"].to_numpy(), kin["dir"].to_numpy(), closed_loop=False)
+    assert np.sqrt(np.mean((naive.theta[first] - kin["theta_rad"][first]) ** 2)) > 20 * COUNT
+
+
+def test_a_coulomb_plant_is_refined_on_the_full_simulation():
+    spec = CFG.plant_spec((make_effect("coulomb_friction", {"Tc": 1.5e-3}),))
+    assert not spec.is_linear
+    kin, truth, _ = _opened_at(spec, 150, seed=3)
+    start = initial_state(kin, spec)
+    assert np.all(np.abs(np.array(start.x0) - truth) <= np.array([0.01, 0.1, 1e-4]))
+
+
+def test_validation_json_reports_the_estimated_start_with_its_uncertainty(tmp_path):
+    from pipeline.validate.stage import validate_run
+
+    spec = CFG.plant_spec()
+    kin, truth, _ = _opened_at(spec, 137)
+    paths = synthetic_run(tmp_path / "processed", kin=kin, cfg=CFG)
+    validate_run(paths, rrd=False, png=False)
+    doc = json.loads(paths.validation.read_text())["initial_state"]
+    x0 = [doc[k] for k in ("current_a", "omega_rad_s", "delta_m")]
+    assert np.all(np.abs(np.array(x0) - truth) <= np.array([3e-3, 0.02, 2e-5]))
+    assert all(doc["sigma"][k] > 0 for k in ("current_a", "omega_rad_s", "delta_m"))
+    assert doc["pre_log_commands"] == []
