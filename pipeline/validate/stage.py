@@ -151,17 +151,22 @@ def validate_run(paths: RunPaths, model_override: ModelOverride = None, *, rrd: 
         write_rrd(paths.rrd, paths.name, kin, sims, validation, spec.guard_rad, panels, verify=verify)
     t5 = time.perf_counter()
     if png:
-        title = (f"{paths.name}   MSE replay: theta {_short(validation, 'replay', 'theta')}, "
-                 f"omega {_short(validation, 'replay', 'omega')}, current {_short(validation, 'replay', 'current')}")
-        write_overview(paths.overview_png, title, kin, sims, spec.guard_rad)
+        write_overview(paths.overview_png, overview_title(paths.name, validation), kin, sims, spec.guard_rad)
     t6 = time.perf_counter()
     timing.update(load=t1 - t0, simulate=t2 - t1, metrics=t3 - t2, write_tables=t4 - t3, rrd=t5 - t4, png=t6 - t5)
     return {**summary_row(validation), "timing_s": timing}
 
 
-def _short(validation: dict, way: str, signal: str) -> str:
-    e = validation[way]["signals"].get(signal)
-    return "-" if e is None or e["mse"] is None else f"{e['mse']:.3g}"
+_MSE_UNITS = {"theta": "rad²", "omega": "(rad/s)²", "current": "A²"}
+
+
+def overview_title(run: str, validation: dict) -> str:
+    """The overview's title: the run and its replay MSE per signal, with units."""
+    parts = []
+    for signal, unit in _MSE_UNITS.items():
+        e = validation["replay"]["signals"].get(signal)
+        parts.append(f"{signal} " + ("-" if e is None or e["mse"] is None else f"{e['mse']:.3g} {unit}"))
+    return f"{run}   MSE replay: " + ", ".join(parts)
 
 
 def summary_row(validation: dict) -> dict:

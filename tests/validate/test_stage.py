@@ -31,7 +31,7 @@ def test_validate_run_writes_every_output(tmp_path):
     assert table.num_rows == 500
     assert table.schema.field("current_replay_a").metadata[b"unit"] == b"A"
     with Image.open(paths.overview_png) as im:
-        assert im.size == (648, 432)
+        assert im.size == (1200, 800)
     assert not list(paths.root.glob(".*tmp*"))        # no temporary files left behind
 
 
@@ -120,8 +120,8 @@ def test_overview_title_is_drawn_in_the_top_band_only():
             return np.asarray(im.convert("RGB"), dtype=int)
 
     blank, short, long = pixels(""), pixels("run-a"), pixels("run-b   MSE replay: theta 1.2e-06 rad^2")
-    band = slice(0, 20)
-    np.testing.assert_array_equal(blank[20:], long[20:])           # lines and axes untouched
+    band = slice(0, 40)
+    np.testing.assert_array_equal(blank[40:], long[40:])           # lines and axes untouched
     dark_short = (short[band].min(axis=2) < 100).sum()
     dark_long = (long[band].min(axis=2) < 100).sum()
     assert (blank[band].min(axis=2) < 100).sum() == 0              # the margin is white without a title
