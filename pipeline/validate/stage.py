@@ -2,8 +2,9 @@
 
 ``validate_run(paths)`` reads ``kinematics.parquet`` and the rig configuration
 stored at ingest (``rig.json``), runs the pure comparison (``compare.py``) and
-writes ``validation.json``, ``comparison.parquet``, ``<run>.rrd`` and
-``overview.png`` into ``processed/<run>/``, each atomically.
+writes ``validation.json``, ``comparison.parquet``, ``comparison.mcap``
+(Foxglove), ``<run>.rrd`` and ``overview.png`` into ``processed/<run>/``, each
+atomically.
 """
 
 from __future__ import annotations
@@ -111,7 +112,7 @@ def write_comparison(target: Path, table: pd.DataFrame) -> None:
 
 
 def validate_run(paths: RunPaths, model_override: ModelOverride = None, *, rrd: bool = True,
-                 png: bool = True, derived: dict[str, pd.DataFrame] | None = None, verify: bool = True) -> dict:
+                 png: bool = True, mcap: bool = True, derived: dict[str, pd.DataFrame] | None = None, verify: bool = True) -> dict:
     """Validate one derived run; returns the summary row (``summary_row``) plus ``timing_s``.
 
     ``derived``: the derive stage's tables just written for this run (keys
@@ -120,6 +121,7 @@ def validate_run(paths: RunPaths, model_override: ModelOverride = None, *, rrd: 
     ``verify=False`` leaves ``rerun rrd verify`` of the ``.rrd`` to the caller
     (``pdr run`` verifies a worker's files in one call before stamping them).
     """
+    from pipeline.validate.mcap_log import write_comparison_mcap
     from pipeline.validate.plots import write_overview
     from pipeline.validate.rerun_log import write_rrd
 
@@ -144,7 +146,10 @@ def validate_run(paths: RunPaths, model_override: ModelOverride = None, *, rrd: 
     })
     t3 = time.perf_counter()
     write_json(paths.validation, validation)
-    write_comparison(paths.comparison, comparison_table(kin, sims))
+    table = comparison_table(kin, sims)
+    write_comparison(paths.comparison, table)
+    if mcap:
+        write_comparison_mcap(paths.comparison_mcap, paths.name, kin, table, validation["model"])
     t4 = time.perf_counter()
     if rrd:
         panels = derived_tables(paths) if derived is None else panel_tables(derived)

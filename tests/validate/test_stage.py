@@ -19,7 +19,7 @@ from tests.validate.synthetic import synthetic_kinematics, synthetic_run
 def test_validate_run_writes_every_output(tmp_path):
     paths = synthetic_run(tmp_path)
     row = validate_run(paths)
-    for f in (paths.validation, paths.comparison, paths.rrd, paths.overview_png):
+    for f in (paths.validation, paths.comparison, paths.comparison_mcap, paths.rrd, paths.overview_png):
         assert f.is_file() and f.stat().st_size > 0
     v = json.loads(paths.validation.read_text())
     assert v["run"] == "synth" and v["n_samples"] == 500
@@ -38,7 +38,8 @@ def test_validate_run_writes_every_output(tmp_path):
 def test_rerun_gives_identical_json_parquet_and_png(tmp_path):
     paths = synthetic_run(tmp_path)
     validate_run(paths)
-    first = {f: f.read_bytes() for f in (paths.validation, paths.comparison, paths.overview_png)}
+    first = {f: f.read_bytes() for f in (paths.validation, paths.comparison, paths.comparison_mcap,
+                                         paths.overview_png)}
     validate_run(paths)
     for f, data in first.items():
         assert f.read_bytes() == data, f.name
@@ -129,3 +130,42 @@ def test_overview_title_is_drawn_in_the_top_band_only():
     cols = np.flatnonzero((long[band].min(axis=2) < 100).any(axis=0))
     assert abs((cols[0] + cols[-1]) / 2 - blank.shape[1] / 2) < 10  # centred
     np.testing.assert_array_equal(pixels("run-a"), short)          # deterministic
+
+
+def test_comparison_mcap_has_the_model_comparison_for_foxglove(tmp_path):
+    """Read back by the mcap library: 7 JSON-schema channels, one message per sample, residual = measured - model."""
+    from mcap.reader import make_reader
+
+    kin = synthetic_kinematics(current_noise_a=0.02, duration=5.0)
+    paths = synthetic_run(tmp_path, kin=kin)
+    validate_run(paths, rrd=False, png=False)
+    with open(paths.comparison_mcap, "rb") as fh:
+        reader = make_reader(fh)
+        summary = reader.get_summary()
+        topics = {c.topic: summary.schemas[c.schema_id] for c in summary.channels.values()}
+        assert set(topics) == {"/measured/kinematics", "/measured/current", "/measured/command", "/model/closed_loop",
+                               "/model/replay", "/residuals/closed_loop", "/residuals/replay"}
+        for schema in topics.values():
+            assert schema.encoding == "jsonschema" and json.loads(schema.data)["type"] == "object"
+        assert set(json.loads(topics["/residuals/replay"].data)["properties"]) == {
+            "theta_residual_replay_rad", "omega_residual_replay_rad_s", "current_residual_replay_a"}
+        meta = {m.name: m.metadata for m in reader.iter_metadata()}
+        assert "wall-clock start is not known" in meta["time"]["log_time"]
+        messages: dict[str, list] = {}
+        for _schema, channel, message in reader.iter_messages():
+            messages.setdefault(channel.topic, []).append((message.log_time, json.loads(message.data)))
+    assert all(len(m) == len(kin) for m in messages.values())
+    times = [lt for lt, _ in messages["/measured/kinematics"]]
+    assert times[0] == 0 and times[-1] == round((kin["t_s"].iloc[-1] - kin["t_s"].iloc[0]) * 1e9)
+    table = pd.read_parquet(paths.comparison)
+    for k in (0, 37, len(kin) - 1):
+        meas = messages["/measured/kinematics"][k][1]
+        model = messages["/model/replay"][k][1]
+        res = messages["/residuals/replay"][k][1]
+        assert meas["theta_rad"] == kin["theta_rad"].iloc[k]
+        assert res["theta_residual_replay_rad"] == pytest.approx(meas["theta_rad"] - model["theta_replay_rad"], abs=1e-15)
+        cur = messages["/measured/current"][k][1]["current_a"]
+        assert res["current_residual_replay_a"] == pytest.approx(cur - model["current_replay_a"], abs=1e-15)
+        assert model["dir_replay"] == kin["dir"].iloc[k]
+        assert table["omega_residual_closed_loop_rad_s"].iloc[k] == pytest.approx(
+            kin["omega_rad_s"].iloc[k] - messages["/model/closed_loop"][k][1]["omega_closed_loop_rad_s"], abs=1e-15)
