@@ -82,3 +82,21 @@ def test_empty_and_mismatched():
     assert len(infer_dir(np.zeros(0), np.zeros(0), GUARD)) == 0
     with pytest.raises(ValueError):
         infer_dir(np.zeros(2), np.zeros(3), GUARD)
+
+
+def test_an_angle_exactly_on_the_guard_reverses_the_command():
+    """The sketch's rule is theta >= guard (MODEL.md): a sample exactly on the guard reverses, one a hair
+    below does not; the phase that reached it ended at the guard."""
+    g = 0.5
+    t = np.arange(6) * 0.05
+    on = np.array([0.0, 0.2, 0.4, g, 0.45, 0.3])
+    below = np.array([0.0, 0.2, 0.4, np.nextafter(g, 0.0), 0.45, 0.3])
+    d_on, d_below = infer_dir(t, on, g), infer_dir(t, below, g)
+    assert d_on.tolist() == [1, 1, 1, -1, -1, -1]
+    assert d_below.tolist() == [1, 1, 1, 1, 1, 1]
+    phases = phase_table(t, on, np.gradient(on, t), None, d_on, g)
+    assert phases["end_reason"].tolist() == ["guard", "end of recording"]
+    assert phases["ended_at_guard"].tolist() == [True, False]
+    logged = np.array([1, 1, 1, -1, -1, -1], dtype=np.int8)
+    assert phase_table(t, below, np.gradient(below, t), None, logged, g)["end_reason"].iloc[0] == \
+        "reversed before guard"
