@@ -36,9 +36,10 @@ VELOCITY_NOTE = (f"omega_rad_s = omega_savgol_rad_s: slope of a local cubic thro
 # the logged current is de-noised within each phase before it is rectified (|I|, paper energy) or squared
 # (copper loss), which would otherwise turn sensor noise into energy: cubic over 15 samples (0.75 s)
 CURRENT_WINDOW, CURRENT_ORDER = 15, 3
-CURRENT_NOTE = ("energy, peak and trigger currents use current_smooth_a: the logged current smoothed within each phase "
+CURRENT_NOTE = ("energy and trigger currents use current_smooth_a: the logged current smoothed within each phase "
                 f"(cubic over {CURRENT_WINDOW} samples, never across a command change), because |I| and I^2 turn "
-                "sensor noise into energy; energy_paper_logged_current_j is the paper's formula on the raw samples")
+                "sensor noise into energy; energy_paper_logged_current_j is the paper's formula on the raw samples; "
+                "phases' peak_current_a comes from one cubic through each phase's logged samples")
 # a run whose angle spans less than this many encoder counts never moved
 STALL_COUNTS = 3
 
@@ -99,7 +100,7 @@ def derive_tables(signals: pd.DataFrame, cfg: RigConfig) -> DerivedTables:
     kin |= {"dir": dirs, "dir_inferred": np.full(len(t), not dir_logged)}
     kinematics = pd.DataFrame(kin)
 
-    phases = phase_table(t, theta, omega, smooth, dirs, guard)
+    phases = phase_table(t, theta, omega, current, dirs, guard)
     over = overshoot_table(t, theta, omega, current, dirs, guard, current_smooth=smooth)
     cycles = cycle_table(over)
 
