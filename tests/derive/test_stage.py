@@ -31,7 +31,8 @@ def true_energy(rec, cfg) -> dict[str, float]:
     t, i, w, th = (tr[c].to_numpy(float) for c in ("t_s", "current_a", "omega_rad_s", "theta_rad"))
     u = tr["dir"].to_numpy(float) * spec.v_drive
     ks = p.R ** 2 * (p.K1 + p.K2)
-    return {"energy_paper_j": spec.v_rms * spec.period_s * np.sum(np.abs(i[:-1] + i[1:])) / 2,
+    on = int(np.flatnonzero(u != 0)[0])                      # the paper's window: the motor-on run
+    return {"energy_paper_j": spec.v_rms * spec.period_s * np.sum(np.abs(i[on:-1] + i[on + 1:])) / 2,
             "input_energy_j": np.sum(u[:-1] * (i[:-1] + i[1:]) / 2 * np.diff(t)),
             "copper_loss_j": p.Ra * np.trapezoid(i ** 2, t),
             "friction_loss_j": p.b * np.trapezoid(w ** 2, t),
@@ -158,7 +159,14 @@ def test_degenerate_recordings_give_clear_answers(kind, tmp_path):
                                                                       "min": None, "max": None}
     if kind == "stalled":
         assert any(n.startswith("stalled") for n in s["notes"])
-        assert s["energy"]["copper_loss_j"] == pytest.approx(2.59 * 0.09 * s["duration_s"])
+    if kind == "one":
+        assert s["energy"] is None and s["not_computed"]["energy"] == "fewer than 2 samples: no interval to integrate over"
+    else:               # the same logged current at every sample: a stuck sensor, no energy (null, never 0)
+        assert s["energy"] is None and s["energy_uncertainty_j"] is None
+        assert "at every sample (a stuck or disconnected sensor)" in s["not_computed"]["energy"]
+        assert s["current"]["constant"] and s["current"]["rms_a"] is None
+        if kind != "two":
+            assert any(n.startswith("current sensor stuck") for n in s["notes"])
     if kind in ("two", "one"):
         assert any("sample(s)" in n for n in s["notes"])
     paths = write_run(tmp_path, degenerate(kind), cfg)
