@@ -34,3 +34,23 @@ def test_cycles_against_the_true_turning_points(effects):
         assert row.amplitude_rad == pytest.approx((hi - lo) / 2, abs=COUNT)
         assert row.center_rad == pytest.approx((hi + lo) / 2, abs=COUNT)
     assert np.abs(cycles["center_rad"].iloc[1:]).max() < 0.05          # symmetric once past the swing from rest
+
+
+def test_every_complete_cycle_and_only_those():
+    """Upper turn -> lower turn -> upper turn, on a hand-made overshoot table: the last complete cycle is
+    kept, and a turn that was cut off (not turned) ends no cycle."""
+    import pandas as pd
+
+    from pipeline.derive.cycles import cycle_table
+
+    turns = [(1.0, 1, 1.05, True), (2.9, -1, -1.03, True), (4.8, 1, 1.04, True), (6.7, -1, -1.02, True),
+             (8.6, 1, 1.06, True), (10.0, -1, -0.5, False)]
+    over = pd.DataFrame({"turn_t_s": [t for t, *_ in turns], "direction": [d for _, d, *_ in turns],
+                         "turn_theta_rad": [th for *_, th, _ in turns], "turned": [ok for *_, ok in turns]})
+    cycles = cycle_table(over)
+    assert cycles["start_s"].tolist() == [1.0, 4.8] and cycles["end_s"].tolist() == [4.8, 8.6]
+    assert cycles["period_s"].tolist() == pytest.approx([3.8, 3.8])
+    assert cycles["theta_min_rad"].tolist() == [-1.03, -1.02]
+    assert cycles["center_rad"].tolist() == pytest.approx([(1.05 - 1.03) / 2, (1.04 - 1.02) / 2])
+    cut = over.assign(turned=[True, True, True, False, True, True])   # the lower turn of cycle 2 not seen
+    assert cycle_table(cut)["start_s"].tolist() == [1.0]

@@ -156,3 +156,19 @@ def test_gate_passes_a_clean_folder_without_a_thresholds_file_and_fails_a_closed
     # a thresholds file named on the command line must exist
     result = runner.invoke(app, ["gate", "--processed", str(processed), "--thresholds", "nope.toml"])
     assert result.exit_code != 0 and "nope.toml: thresholds file not found" in str(result.exception)
+
+
+def test_margin_text_boundaries_and_checks_of_partly_logged_runs():
+    assert Check("r", "replay", "theta", 1.5e-5, 1e-5).margin_text() == "1.5x over"
+    assert Check("r", "replay", "theta", 1e-3, 1e-5).margin_text() == "100x over"
+    assert Check("r", "replay", "theta", 9.9e-4, 1e-5).margin_text() == "99x over"
+    # replay logged theta only, closed loop all three: every present signal is checked, each named by its run
+    doc = {"run": "part", "replay": {"signals": {"theta": {"mse": 1e-6}}},
+           "closed_loop": {"signals": {s: {"mse": 1e-6} for s in ("theta", "omega", "current")}}}
+    verdict = check_run(doc, builtin_thresholds().for_run("part"))
+    assert [(c.way, c.signal) for c in verdict.checks] == [("replay", "theta"), ("closed_loop", "theta"),
+                                                           ("closed_loop", "omega"), ("closed_loop", "current")]
+    assert {c.run for c in verdict.checks} == {"part"} and verdict.passed
+    doc["closed_loop"]["signals"]["current"]["mse"] = 1.0
+    assert check_run(doc, builtin_thresholds().for_run("part")).failures() == [
+        "closed_loop current MSE 1 > 0.015 A^2"]
