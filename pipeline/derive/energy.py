@@ -178,7 +178,8 @@ def energy_uncertainty(t: np.ndarray, current: np.ndarray, omega: np.ndarray, di
     Linear propagation: the figures are computed from the smoothed current S(I + e), so
     a figure F changes by g . S e (g = dF/dI at the smoothed current) and
     sigma_F = noise * ||S^T g||.  ``smoother`` is S (the stage's phase-wise local fit,
-    nearly symmetric, so S stands in for S^T); without it the raw noise is propagated.
+    nearly symmetric, so S stands in for S^T; it is given the gradients as the columns
+    of one (n, 6) array); without it the raw noise is propagated.
     Smoothing preserves sums, so the long sums (input, paper) keep nearly all the noise
     (a one-ADC-step noise puts ~1.1 % on the paper's 500-sample sum whatever the
     smoother), while the balance residual loses much of it: a slow current error moves
@@ -213,5 +214,7 @@ def energy_uncertainty(t: np.ndarray, current: np.ndarray, omega: np.ndarray, di
     grads = {"energy_paper_j": d_paper, "input_energy_j": d_input, "copper_loss_j": d_copper,
              "emf_torque_mismatch_j": d_mismatch, "magnetic_energy_change_j": d_magnetic,
              "balance_residual_j": d_residual}
-    smooth = smoother if smoother is not None else (lambda g: g)
-    return {k: float(noise_a * np.linalg.norm(smooth(g))) for k, g in grads.items()}
+    stacked = np.column_stack(list(grads.values()))
+    if smoother is not None:
+        stacked = smoother(stacked)                       # one pass for every figure's gradient
+    return {k: float(noise_a * np.linalg.norm(stacked[:, j])) for j, k in enumerate(grads)}

@@ -132,6 +132,7 @@ class _Overview:
         self.phase_guards = [self.phase.axvline(0.0, color="tab:red", lw=0.9, ls="--") for _ in range(2)]
         self.legend = None
         self.phase_legend = None
+        self.legend_key: tuple[float, bool] | None = None
         self.title = _TitleStamp(self.fig, fontsize=13.0, top=0.985)
         self.backgrounds: dict[tuple, object] = {}
 
@@ -147,6 +148,12 @@ class _Overview:
             line.set_ydata([g, g])
         for line, g in zip(self.phase_guards, (guard, -guard)):
             line.set_xdata([g, g])
+        if self.legend_key != (guard, same):
+            self._set_legends(guard, same)
+
+    def _set_legends(self, guard: float, same: bool) -> None:
+        """Rebuilt only when the guard or the coincidence changes: a legend costs a few ms to lay out."""
+        self.legend_key = (guard, same)
         ways = ("measured", "replay") if same else ("measured", "closed_loop", "replay")
         handles = [self.lines[0, w] for w in ways] + [self.guards[0]]
         labels = [("closed loop = replay" if same and w == "replay" else _LABELS[w]) for w in ways]
