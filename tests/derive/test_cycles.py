@@ -54,3 +54,19 @@ def test_every_complete_cycle_and_only_those():
     assert cycles["center_rad"].tolist() == pytest.approx([(1.05 - 1.03) / 2, (1.04 - 1.02) / 2])
     cut = over.assign(turned=[True, True, True, False, True, True])   # the lower turn of cycle 2 not seen
     assert cycle_table(cut)["start_s"].tolist() == [1.0]
+
+
+def test_steady_figures_leave_out_the_swing_from_rest():
+    import pandas as pd
+
+    from pipeline.derive.cycles import cycle_summary
+
+    cycles = pd.DataFrame({"period_s": [4.6, 3.7, 3.8], "amplitude_rad": [1.25, 1.05, 1.05],
+                           "center_rad": [0.1, 0.0, 0.0]})
+    s = cycle_summary(cycles)
+    assert s["period_s"]["n"] == 3 and s["steady_period_s"]["n"] == 2
+    assert s["steady_period_s"]["mean"] == pytest.approx(3.75) and s["frequency_hz"] == pytest.approx(1 / 3.75)
+    assert s["steady_amplitude_rad"]["max"] == pytest.approx(1.05)
+    assert s["log_decrement"] == pytest.approx(np.log(1.25 / 1.05) / 2)
+    one = cycle_summary(cycles.iloc[:1])
+    assert one["steady_period_s"]["n"] == 1 and one["log_decrement"] is None

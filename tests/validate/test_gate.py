@@ -55,6 +55,10 @@ def test_shipped_thresholds_parse_and_gate_both_ways():
     ("[default.replay]\nangle = 1.0\n", "default.replay.angle"),
     ("[default.sideways]\ntheta = 1.0\n", "default.sideways"),
     ("[runs.x.replay]\ntheta = \"small\"\n", "runs.x.replay.theta"),
+    ("[default.replay]\ntheta = 0.0\n", "default.replay.theta"),
+    ("[default]\nreplay = 1.0\n", "default.replay"),
+    ("default = 3\n", "default"),
+    ("runs = 1\n", "runs"),
 ])
 def test_bad_thresholds_name_file_and_key(text, key):
     with pytest.raises(ConfigError) as err:
@@ -172,3 +176,19 @@ def test_margin_text_boundaries_and_checks_of_partly_logged_runs():
     doc["closed_loop"]["signals"]["current"]["mse"] = 1.0
     assert check_run(doc, builtin_thresholds().for_run("part")).failures() == [
         "closed_loop current MSE 1 > 0.015 A^2"]
+
+
+def test_segment_overrides_keep_the_stem_whole_and_gate_lists_every_run_folder(tmp_path):
+    t = parse_thresholds(__import__("tomllib").loads('[runs."tank-segment".replay]\ntheta = 2.0\n'), "t.toml")
+    assert t.for_run("tank-segment-seg2")["replay"]["theta"] == 2.0      # the stem is all before the last -seg
+    assert t.for_run("tank-seg2")["replay"].get("theta") is None
+    processed = tmp_path / "processed"
+    synthetic_run(processed, "a-unvalidated")
+    validate_run(synthetic_run(processed, "b", kin=synthetic_kinematics(duration=3.0)), rrd=False, png=False)
+    (processed / ".hidden").mkdir()
+    (processed / ".hidden" / "rig.json").write_text("{}")
+    (processed / "no-rig").mkdir()
+    verdicts = gate(processed, builtin_thresholds())
+    assert [v.run for v in verdicts] == ["a-unvalidated", "b"]
+    assert verdicts[0].failures() == ["no validation.json (pipeline failed before validate)"]
+    assert verdicts[0].checks == () and len(verdicts[1].checks) == 6
