@@ -68,5 +68,7 @@ def test_steady_figures_leave_out_the_swing_from_rest():
     assert s["steady_period_s"]["mean"] == pytest.approx(3.75) and s["frequency_hz"] == pytest.approx(1 / 3.75)
     assert s["steady_amplitude_rad"]["max"] == pytest.approx(1.05)
     assert s["log_decrement"] == pytest.approx(np.log(1.25 / 1.05) / 2)
+    two = cycle_summary(cycles.iloc[:2])
+    assert two["steady_period_s"]["n"] == 1 and two["steady_period_s"]["mean"] == pytest.approx(3.7)
     one = cycle_summary(cycles.iloc[:1])
     assert one["steady_period_s"]["n"] == 1 and one["log_decrement"] is None

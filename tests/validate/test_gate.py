@@ -192,3 +192,29 @@ def test_segment_overrides_keep_the_stem_whole_and_gate_lists_every_run_folder(t
     assert [v.run for v in verdicts] == ["a-unvalidated", "b"]
     assert verdicts[0].failures() == ["no validation.json (pipeline failed before validate)"]
     assert verdicts[0].checks == () and len(verdicts[1].checks) == 6
+
+
+@pytest.mark.parametrize("text, detail", [
+    ("[default.sideways]\ntheta = 1.0\n", "unknown way, expected one of replay, closed_loop"),
+    ("[default]\nreplay = 1.0\n", "expected a table of MSE thresholds"),
+    ("[default.replay]\nangle = 1.0\n", "unknown signal, expected one of theta, omega, current"),
+    ("default = 3\n", "expected a table with [..replay] and/or [..closed_loop]"),
+    ("[defaults.replay]\ntheta = 1.0\n", 'unknown section, expected [default.<way>] or [runs."<run>".<way>]'),
+    ("runs = 1\n", "expected a table of runs"),
+])
+def test_refusals_say_what_was_expected_and_name_the_file(tmp_path, text, detail):
+    path = tmp_path / "thresholds.toml"
+    path.write_text(text)
+    with pytest.raises(ConfigError) as err:
+        load_thresholds(path)
+    assert str(err.value).startswith(f"{path}, key '") and str(err.value).endswith(detail)
+
+
+def test_a_missing_signal_does_not_hide_the_next_one_and_a_missing_mse_fails():
+    doc = {"run": "r", "replay": {"signals": {"theta": {"mse": 1e-6}, "current": {"mse": 1.0}}},
+           "closed_loop": {"signals": {"theta": {}}}}
+    verdict = check_run(doc, builtin_thresholds().for_run("r"))
+    assert [(c.way, c.signal) for c in verdict.checks] == [("replay", "theta"), ("replay", "current"),
+                                                           ("closed_loop", "theta")]
+    assert verdict.failures() == ["replay current MSE 1 > 0.0015 A^2", "closed_loop theta MSE missing"]
+    assert load_thresholds(SHIPPED).source == str(SHIPPED)
