@@ -7,7 +7,7 @@ PY     := $(VENV)/bin/python
 PDR    := $(VENV)/bin/pdr
 STAMP  := $(VENV)/.installed-stamp
 
-.PHONY: all run test test-fast bench bench-discovery bench-discovery-shipped gate setup clean viewer-deps bytecode
+.PHONY: all run test test-fast bench bench-discovery bench-discovery-shipped gate setup clean viewer-deps bytecode mutation
 
 all: run
 
@@ -55,6 +55,15 @@ bench-discovery: bytecode
 
 bench-discovery-shipped: bytecode
 	$(PY) -m benchmarks.discovery_matrix --shipped
+
+# Mutation testing of derive/, validate/ and discover/selection.py (pyproject [tool.mutmut]); not part of
+# `make test`: hours on two cores.  MUTANTS narrows it, e.g. make mutation MUTANTS='pipeline.derive.energy*'.
+# Results: mutants/ (`.venv/bin/mutmut results`, `mutmut show NAME`); the last score is in docs/MUTATION.md.
+MUTANTS ?=
+MUTATION_JOBS ?= 2
+mutation: bytecode
+	$(PY) -m pip install -q -e '.[test,mutation]'
+	$(VENV)/bin/mutmut run --max-children $(MUTATION_JOBS) $(MUTANTS)
 
 clean:
 	rm -rf processed

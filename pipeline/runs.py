@@ -112,6 +112,8 @@ class RunPaths:
     @property
     def comparison(self) -> Path: return self.root / "comparison.parquet"
     @property
+    def comparison_mcap(self) -> Path: return self.root / "comparison.mcap"
+    @property
     def rrd(self) -> Path: return self.root / f"{self.name}.rrd"
     @property
     def overview_png(self) -> Path: return self.root / "overview.png"

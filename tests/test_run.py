@@ -113,9 +113,32 @@ def test_two_concurrent_runs_leave_processed_consistent(recordings, tmp_path):
     assert not list(processed.rglob(".*.tmp*"))
 
 
-def test_code_version_is_a_short_stable_hash():
-    assert code_version() == code_version()
-    assert len(code_version()) == 16 and int(code_version(), 16) >= 0
+def test_code_version_is_a_short_stable_hash(tmp_path, monkeypatch):
+    """The hash of every source path and its bytes, computed here on a small tree; any edit changes it."""
+    import hashlib
+
+    import pipeline.run as run_module
+
+    pkg, schemas = tmp_path / "pipeline", tmp_path / "schemas"
+    (pkg / "sub").mkdir(parents=True)
+    schemas.mkdir()
+    files = {"pipeline/a.py": b"x = 1\n", "pipeline/sub/b.py": b"y = 2\n", "schemas/s.json": b"{}"}
+    for rel, data in files.items():
+        (tmp_path / rel).write_bytes(data)
+    monkeypatch.setattr(run_module, "PACKAGE_ROOT", pkg)
+    monkeypatch.setattr(run_module, "SCHEMA_ROOT", schemas)
+    h = hashlib.sha256()
+    for rel, data in files.items():
+        h.update(rel.encode())
+        h.update(data)
+    first = code_version()
+    assert first == h.hexdigest()[:16]
+    (pkg / "sub" / "b.py").write_bytes(b"y = 3\n")
+    assert code_version() != first
+    (pkg / "sub" / "b.py").write_bytes(b"y = 2\n")
+    assert code_version() == first
+    (schemas / "s.json").write_bytes(b"{ }")
+    assert code_version() != first
 
 
 def test_run_command_exit_status_and_missing_raw_folder(tmp_path):

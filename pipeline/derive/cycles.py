@@ -42,14 +42,35 @@ def cycle_table(overshoot: pd.DataFrame) -> pd.DataFrame:
     }, columns=CYCLE_COLUMNS)
 
 
+def log_decrement(amplitudes: np.ndarray) -> tuple[float | None, float | None, str | None]:
+    """Mean logarithmic decrement of successive cycle amplitudes, the damping ratio it implies,
+    zeta = delta / sqrt(4 pi^2 + delta^2), and why not when there are fewer than two cycles.
+
+    The rig is driven (bang-bang), so this measures how fast the swing settles onto its
+    limit cycle (positive: amplitudes shrink; ~0 once steady), not the plant's free damping.
+    """
+    a = np.asarray(amplitudes, dtype=float)
+    if len(a) < 2:
+        return None, None, f"{len(a)} cycle(s): a decrement needs two successive amplitudes"
+    if np.any(a <= 0):
+        return None, None, "a cycle without a positive amplitude"
+    delta = float(np.mean(np.log(a[:-1] / a[1:])))
+    return delta, float(delta / np.sqrt(4 * np.pi ** 2 + delta ** 2)), None
+
+
 def cycle_summary(cycles: pd.DataFrame) -> dict:
-    """Period and amplitude statistics; ``steady`` leaves out the first cycle (the swing from rest)."""
+    """Period, frequency and amplitude statistics; ``steady`` leaves out the first cycle (the swing from rest)."""
     steady = cycles.iloc[1:] if len(cycles) > 1 else cycles
+    steady_period = describe(column(steady, "period_s", float))
+    delta, zeta, why = log_decrement(column(cycles, "amplitude_rad", float))
     return {
         "n_cycles": int(len(cycles)),
         "period_s": describe(column(cycles, "period_s", float)),
         "amplitude_rad": describe(column(cycles, "amplitude_rad", float)),
         "center_rad": describe(column(cycles, "center_rad", float)),
-        "steady_period_s": describe(column(steady, "period_s", float)),
+        "steady_period_s": steady_period,
         "steady_amplitude_rad": describe(column(steady, "amplitude_rad", float)),
+        "frequency_hz": 1.0 / steady_period["mean"] if steady_period["mean"] else None,
+        "log_decrement": delta, "damping_ratio": zeta,
+        "log_decrement_not_computed": why,
     }

@@ -21,6 +21,8 @@ and validation stages), so "experiment vs simulation" compares like with like.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from pipeline.model.effects import PlantSpec
@@ -40,7 +42,7 @@ def paper_energy_j(current: np.ndarray, v_rms: float, period_s: float) -> float:
     """
     y = np.asarray(current, dtype=float)
     if len(y) < 2:
-        return 0.0
+        return float("nan")             # no interval: nothing to integrate (null in JSON, never 0)
     return float(v_rms * period_s * np.sum(np.abs(y[:-1] + y[1:])) / 2.0)
 
 
@@ -66,6 +68,13 @@ def applied_voltage(t: np.ndarray, dirs: np.ndarray, v_drive: float, Td: float =
     return out
 
 
+def motor_on_start(dirs: np.ndarray) -> int:
+    """First sample at which the sketch drives the motor (``len(dirs)`` if never): the paper's
+    window starts there (its N = 500 samples are the motor-on run, not the logging before it)."""
+    on = np.flatnonzero(np.asarray(dirs) != 0)
+    return int(on[0]) if len(on) else len(dirs)
+
+
 def run_energy(t: np.ndarray, current: np.ndarray, omega: np.ndarray, theta: np.ndarray,
                dirs: np.ndarray, spec: PlantSpec) -> dict[str, float]:
     """The energy figures of one run, measured or simulated, from its commands: the one entry point.
@@ -73,10 +82,14 @@ def run_energy(t: np.ndarray, current: np.ndarray, omega: np.ndarray, theta: np.
     The derive stage (measured), the validation stage (measured and both simulations) and
     ``pdr simulate`` all call this, so "experiment vs simulation" compares like with like:
     the voltage the motor sees (``dirs`` delayed by ``spec.Td``, after the driver drop) and
-    the supply's V_RMS for the paper's estimate.
+    the supply's V_RMS for the paper's estimate, taken over the motor-on window
+    (``motor_on_start``); the physical balance covers the whole run.
     """
     u = applied_voltage(t, dirs, spec.v_drive, spec.Td)
-    return energy_terms(t, current, omega, theta, u, spec, v_rms=spec.v_rms, period_s=spec.period_s)
+    out = energy_terms(t, current, omega, theta, u, spec, v_rms=spec.v_rms, period_s=spec.period_s)
+    k0 = motor_on_start(dirs)
+    out["energy_paper_j"] = paper_energy_j(np.asarray(current, dtype=float)[k0:], spec.v_rms, spec.period_s)
+    return out
 
 
 def dead_zone(theta: np.ndarray, gap: float) -> np.ndarray:
@@ -89,12 +102,12 @@ def dead_zone(theta: np.ndarray, gap: float) -> np.ndarray:
 
 def _trapezoid(y: np.ndarray, t: np.ndarray) -> float:
     if len(y) < 2:
-        return 0.0
+        return float("nan")
     return float(np.sum((y[:-1] + y[1:]) * np.diff(t)) / 2.0)
 
 
 def _change(y: np.ndarray) -> float:
-    return float(y[-1] - y[0]) if len(y) >= 2 else 0.0
+    return float(y[-1] - y[0]) if len(y) >= 2 else float("nan")
 
 
 def energy_terms(t: np.ndarray, current: np.ndarray, omega: np.ndarray, theta: np.ndarray,
@@ -106,7 +119,8 @@ def energy_terms(t: np.ndarray, current: np.ndarray, omega: np.ndarray, theta: n
     for a recording); ``omega`` [rad/s]; ``theta`` [rad]; ``u`` [V] the voltage
     applied from each sample to the next (zero-order hold, ``dir * v_drive``).
     Integrals are trapezoids on the real time axis; stored-energy changes are
-    last sample minus first.
+    last sample minus first.  With fewer than two samples every figure is NaN
+    (nothing to integrate), never 0.
     """
     t = np.asarray(t, dtype=float)
     current = np.asarray(current, dtype=float)
@@ -119,7 +133,7 @@ def energy_terms(t: np.ndarray, current: np.ndarray, omega: np.ndarray, theta: n
     p = spec.params
     h = np.diff(t)
     # u[k] is held over [t_k, t_k+1]; the current is trapezoidal within the interval
-    input_j = float(np.sum(u[:-1] * (current[:-1] + current[1:]) * h) / 2.0) if n >= 2 else 0.0
+    input_j = float(np.sum(u[:-1] * (current[:-1] + current[1:]) * h) / 2.0) if n >= 2 else float("nan")
     copper = p.Ra * _trapezoid(current ** 2, t)                                   # Ra I^2
     friction = _trapezoid(p.b * omega ** 2 + spec.Tc * np.abs(omega), t)          # b w^2 + Tc |w|
     mismatch = (p.Ke - p.Kt) * _trapezoid(omega * current, t)                     # (Ke - Kt) w I
@@ -140,3 +154,69 @@ def energy_terms(t: np.ndarray, current: np.ndarray, omega: np.ndarray, theta: n
         "load_work_j": load,
         "balance_residual_j": residual,
     }
+
+
+# Terms that depend on the current, and so carry its noise; the others (friction, spring,
+# kinetic) depend on the encoder alone, whose quantisation is far smaller here.
+CURRENT_TERMS = ("energy_paper_j", "input_energy_j", "copper_loss_j", "emf_torque_mismatch_j",
+                 "magnetic_energy_change_j", "balance_residual_j")
+
+
+def current_noise_a(current: np.ndarray, smooth: np.ndarray, window: int, order: int) -> float:
+    """Standard deviation of the sensor noise: the scatter of the logged current about its local
+    polynomial fit, scaled up for the fit's own degrees of freedom (``window - order - 1`` of ``window``)."""
+    r = np.asarray(current, dtype=float) - np.asarray(smooth, dtype=float)
+    r = r[np.isfinite(r)]
+    if len(r) < 2 or window <= order + 1:
+        return float("nan")
+    return float(np.sqrt(np.mean(r * r) * window / (window - order - 1)))
+
+
+def energy_uncertainty(t: np.ndarray, current: np.ndarray, omega: np.ndarray, dirs: np.ndarray,
+                       spec: PlantSpec, noise_a: float,
+                       smoother: Callable[[np.ndarray], np.ndarray] | None = None) -> dict[str, float]:
+    """One standard deviation [J] of each current-dependent energy figure from white current noise.
+
+    Linear propagation: the figures are computed from the smoothed current S(I + e), so
+    a figure F changes by g . S e (g = dF/dI at the smoothed current) and
+    sigma_F = noise * ||S^T g||.  ``smoother`` is S (the stage's phase-wise local fit,
+    nearly symmetric, so S stands in for S^T; it is given the gradients as the columns
+    of one (n, 6) array); without it the raw noise is propagated.
+    Smoothing preserves sums, so the long sums (input, paper) keep nearly all the noise
+    (a one-ADC-step noise puts ~1.1 % on the paper's 500-sample sum whatever the
+    smoother), while the balance residual loses much of it: a slow current error moves
+    the input and the stored magnetic energy together.
+    """
+    t = np.asarray(t, dtype=float)
+    i = np.asarray(current, dtype=float)
+    w = np.asarray(omega, dtype=float)
+    n = len(t)
+    if n < 2 or not np.isfinite(noise_a):
+        return {k: float("nan") for k in CURRENT_TERMS}
+    p = spec.params
+    u = applied_voltage(t, dirs, spec.v_drive, spec.Td)
+    h = np.diff(t)
+    trap = np.zeros(n)                                   # d/dy_k of the trapezoid of y over t
+    trap[:-1] += h / 2.0
+    trap[1:] += h / 2.0
+    d_input = np.zeros(n)
+    d_input[:-1] += u[:-1] * h / 2.0
+    d_input[1:] += u[:-1] * h / 2.0
+    d_copper = 2.0 * p.Ra * i * trap
+    d_mismatch = (p.Ke - p.Kt) * w * trap
+    d_magnetic = np.zeros(n)
+    d_magnetic[-1] += p.La * i[-1]
+    d_magnetic[0] -= p.La * i[0]
+    d_paper = np.zeros(n)
+    k0 = motor_on_start(dirs)
+    s = np.sign(i[k0:-1] + i[k0 + 1:]) * spec.v_rms * spec.period_s / 2.0
+    d_paper[k0:-1] += s
+    d_paper[k0 + 1:] += s
+    d_residual = d_input - d_copper - d_mismatch - d_magnetic
+    grads = {"energy_paper_j": d_paper, "input_energy_j": d_input, "copper_loss_j": d_copper,
+             "emf_torque_mismatch_j": d_mismatch, "magnetic_energy_change_j": d_magnetic,
+             "balance_residual_j": d_residual}
+    stacked = np.column_stack(list(grads.values()))
+    if smoother is not None:
+        stacked = smoother(stacked)                       # one pass for every figure's gradient
+    return {k: float(noise_a * np.linalg.norm(stacked[:, j])) for j, k in enumerate(grads)}

@@ -117,7 +117,7 @@ def overshoot_table(t: np.ndarray, theta: np.ndarray, omega: np.ndarray, current
 def _trend(times: np.ndarray, values: np.ndarray) -> tuple[float, bool]:
     """Change of ``values`` over the span of ``times`` from a straight-line fit, and whether it is significant (> 3 SE)."""
     if len(values) < 3 or np.ptp(times) == 0:
-        return 0.0, False
+        return float("nan"), False          # undefined (null in summary.json), never a 0 trend
     A = np.vstack([times - times.mean(), np.ones_like(times)]).T
     coef, *_ = np.linalg.lstsq(A, values, rcond=None)
     resid = values - A @ coef
@@ -149,7 +149,8 @@ def centre_drift(table: pd.DataFrame) -> tuple[float, bool, int]:
 
 
 def overshoot_summary(table: pd.DataFrame, guard_rad: float, period_s: float, dir_logged: bool) -> dict:
-    """Statistics per direction (mean, spread, max), the overshoot trend, and the drift / guard-offset flags.
+    """Statistics per direction (mean, spread, max; ``steady_overshoot_rad`` without the first swing
+    from rest), the overshoot trend, and the drift / guard-offset flags.
 
     ``trend_rad`` per direction is the straight-line change of the overshoot
     over the run (the first reversal at each guard, a swing from rest, left
@@ -167,13 +168,18 @@ def overshoot_summary(table: pd.DataFrame, guard_rad: float, period_s: float, di
         trend, _ = _trend(col["turn_t_s"][steady], col["overshoot_rad"][steady])
         out["directions"][name] = {
             "overshoot_rad": describe(col["overshoot_rad"][sub]),
+            "steady_overshoot_rad": describe(col["overshoot_rad"][steady]),
             "trigger_excess_rad": describe(col["trigger_excess_rad"][sub]),
             "turn_delay_s": describe(col["turn_delay_s"][sub]),
             "current_reversal_delay_s": describe(col["current_reversal_delay_s"][sub]),
             "trend_rad": trend,
+            "trend_not_computed": (None if np.isfinite(trend) else
+                                   f"{len(steady)} turn(s) after the first at this guard: a trend needs 3"),
         }
     drift, significant, used = centre_drift(table)
     out["centre_drift_rad"] = drift
+    out["centre_drift_not_computed"] = (None if np.isfinite(drift) else
+                                        f"{used} turn pair(s) after the settling ones: a trend needs 3")
     out["drift_flag"] = bool(significant and abs(drift) > DRIFT_LIMIT_RAD)
     if out["drift_flag"]:
         out["flags"].append(f"the oscillation centre drifts by {drift:+.3f} rad over the run ({used} turn pairs): "

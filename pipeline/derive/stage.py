@@ -19,7 +19,8 @@ import pandas as pd
 from pipeline.columns import column
 from pipeline.config import RigConfig
 from pipeline.derive.cycles import cycle_summary, cycle_table
-from pipeline.derive.energy import paper_energy_j, run_energy
+from pipeline.derive.energy import (current_noise_a, energy_uncertainty, motor_on_start, paper_energy_j,
+                                    run_energy)
 from pipeline.derive.overshoot import overshoot_summary, overshoot_table
 from pipeline.derive.phases import MODE_OF_DIR, infer_dir, phase_bounds, phase_table, reversal_indices
 from pipeline.derive.stats import describe
@@ -36,9 +37,12 @@ VELOCITY_NOTE = (f"omega_rad_s = omega_savgol_rad_s: slope of a local cubic thro
 # the logged current is de-noised within each phase before it is rectified (|I|, paper energy) or squared
 # (copper loss), which would otherwise turn sensor noise into energy: cubic over 15 samples (0.75 s)
 CURRENT_WINDOW, CURRENT_ORDER = 15, 3
-CURRENT_NOTE = ("energy, peak and trigger currents use current_smooth_a: the logged current smoothed within each phase "
+CURRENT_NOTE = ("energy and trigger currents use current_smooth_a: the logged current smoothed within each phase "
                 f"(cubic over {CURRENT_WINDOW} samples, never across a command change), because |I| and I^2 turn "
-                "sensor noise into energy; energy_paper_logged_current_j is the paper's formula on the raw samples")
+                "sensor noise into energy; energy_paper_logged_current_j is the paper's formula on the raw samples; "
+                "phases' peak_current_a comes from one cubic through each phase's logged samples")
+UNCERTAINTY_NOTE = ("one standard deviation from the current sensor's noise (current.noise_a), propagated "
+                    "linearly; friction, spring and kinetic terms do not depend on the current")
 # a run whose angle spans less than this many encoder counts never moved
 STALL_COUNTS = 3
 
@@ -99,7 +103,7 @@ def derive_tables(signals: pd.DataFrame, cfg: RigConfig) -> DerivedTables:
     kin |= {"dir": dirs, "dir_inferred": np.full(len(t), not dir_logged)}
     kinematics = pd.DataFrame(kin)
 
-    phases = phase_table(t, theta, omega, smooth, dirs, guard)
+    phases = phase_table(t, theta, omega, current, dirs, guard)
     over = overshoot_table(t, theta, omega, current, dirs, guard, current_smooth=smooth)
     cycles = cycle_table(over)
 
@@ -111,22 +115,41 @@ def derive_tables(signals: pd.DataFrame, cfg: RigConfig) -> DerivedTables:
         notes.append(f"stalled: the angle spans {span:.4g} rad (< {STALL_COUNTS} encoder counts) over "
                      f"{t[-1] - t[0]:.3g} s")
     max_abs = float(np.max(np.abs(theta)))
+    moving_off = _moving_while_off(dirs, theta, count_rad) if dir_logged else 0
+    if moving_off:
+        notes.append(f"the motor is logged off (dir = 0) while the pinion moves ({moving_off} encoder counts): "
+                     "something else drives it, or the sketch logs dir wrongly (check columns.dir and the sketch)")
     if len(over) == 0:
         why = (f"the angle never reached a guard (max |theta| = {max_abs:.3f} rad, guard {guard:.3f} rad)"
                if max_abs < guard else "the command never reversed")
+        if dir_logged and not np.any(dirs != 0):
+            why = "the motor is logged off (dir = 0) for the whole run: the controller never acted"
         not_computed["overshoot"] = why
-        if max_abs < guard and _turns_without_guard(omega, count_rad, spec.period_s):
+        if max_abs < guard and not moving_off and _turns_without_guard(omega, count_rad, spec.period_s):
             notes.append("the pinion reverses without reaching the guard: check encoder.counts_per_rev "
                          "and controller.guard_rad against the sketch")
     if len(cycles) == 0:
         not_computed["cycles"] = "fewer than two upper turning points with a lower one between them"
 
+    energy, uncertainty, current_stats = None, None, None
     if current is None:
-        energy = None
         not_computed["energy"] = "no current column: energy not computed"
     else:
-        energy = run_energy(t, smooth, omega, theta, dirs, spec)
-        energy["energy_paper_logged_current_j"] = paper_energy_j(current, spec.v_rms, spec.period_s)
+        current_stats = current_summary(current, smooth, dirs)
+        if current_stats["stuck"]:
+            notes.append(current_stats["stuck"])
+        if len(t) < 2:
+            not_computed["energy"] = "fewer than 2 samples: no interval to integrate over"
+        elif current_stats["constant"]:
+            not_computed["energy"] = (f"current_a is {current[0]:.4g} A at every sample (a stuck or disconnected "
+                                      "sensor): energy not computed")
+        else:
+            energy = run_energy(t, smooth, omega, theta, dirs, spec)
+            k0 = motor_on_start(dirs)
+            energy["energy_paper_logged_current_j"] = paper_energy_j(current[k0:], spec.v_rms, spec.period_s)
+            bounds = phase_bounds(dirs)
+            uncertainty = energy_uncertainty(t, smooth, omega, dirs, spec, current_stats["noise_a"],
+                                             lambda g: smooth_by_phase(t, g, bounds, CURRENT_WINDOW, CURRENT_ORDER))
 
     phase_dir, phase_duration = column(phases, "dir"), column(phases, "duration_s", float)
     modes = [MODE_OF_DIR[int(d)] for d in phase_dir]
@@ -152,11 +175,63 @@ def derive_tables(signals: pd.DataFrame, cfg: RigConfig) -> DerivedTables:
         "overshoot": overshoot_summary(over, guard, spec.period_s, dir_logged),
         "cycles": cycle_summary(cycles),
         "energy": energy,
+        "energy_uncertainty_j": uncertainty,
+        "energy_uncertainty_note": UNCERTAINTY_NOTE if uncertainty is not None else None,
+        "energy_paper_window": ({"first_sample": motor_on_start(dirs), "samples": int(len(t) - motor_on_start(dirs)),
+                                 "why": "the motor-on run, as the paper's N = 500"} if energy is not None else None),
         "energy_current": CURRENT_NOTE if current is not None else None,
+        "current": current_stats,
         "not_computed": not_computed,
         "notes": notes,
     }
     return DerivedTables(kinematics, phases, over, cycles, _json_safe(summary))
+
+
+def _moving_while_off(dirs: np.ndarray, theta: np.ndarray, count_rad: float) -> int:
+    """Encoder counts travelled over samples logged motor-off after the motor first ran, or over a run
+    logged off throughout (0 when below ``STALL_COUNTS``: sitting still, or coasting a count or two)."""
+    dirs = np.asarray(dirs)
+    off = dirs[1:] == 0
+    if np.any(dirs != 0):
+        off &= np.arange(1, len(dirs)) > motor_on_start(dirs)
+    travel = float(np.sum(np.abs(np.diff(theta))[off])) / count_rad if len(theta) > 1 else 0.0
+    return int(round(travel)) if travel >= 10 * STALL_COUNTS else 0
+
+
+STUCK_SAMPLES = 20      # a logged current that repeats one value this long (1 s at 50 ms) with the motor on
+
+
+def current_summary(current: np.ndarray, smooth: np.ndarray, dirs: np.ndarray) -> dict[str, Any]:
+    """RMS current over the motor-on samples (smoothed: the sensor noise would add in quadrature),
+    the sensor noise, and whether the sensor looks stuck (one value repeated ``STUCK_SAMPLES`` with the
+    motor on, which a live sensor's noise of about an ADC step never does)."""
+    current = np.asarray(current, dtype=float)
+    on = np.asarray(dirs) != 0
+    finite = current[np.isfinite(current)]
+    constant = bool(len(finite) >= 2 and np.ptp(finite) == 0)
+    best, at = _longest_repeat(current, on)
+    stuck = None
+    if constant or best >= STUCK_SAMPLES:
+        stuck = (f"current sensor stuck: current_a = {current[at]:.4g} A for {best} samples from sample {at} "
+                 "with the motor on (a live sensor's noise changes it every few samples)")
+    rms = float(np.sqrt(np.mean(smooth[on] ** 2))) if on.any() and not constant else None
+    noise = current_noise_a(current, smooth, CURRENT_WINDOW, CURRENT_ORDER) if not constant else None
+    return {"rms_a": rms, "noise_a": noise, "longest_repeat_samples": int(best), "constant": constant,
+            "stuck": stuck}
+
+
+def _longest_repeat(x: np.ndarray, on: np.ndarray) -> tuple[int, int]:
+    """Length and first sample of the longest run of one repeated value (each repeat with ``on``)."""
+    if len(x) == 0:
+        return 0, 0
+    same = (x[1:] == x[:-1]) & on[1:]
+    # runs of True in ``same``: a run of r repeats is r + 1 equal samples
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], same.astype(np.int8), [0]])))
+    if len(edges) == 0:
+        return 1, 0
+    starts, ends = edges[::2], edges[1::2]
+    k = int(np.argmax(ends - starts))
+    return int(ends[k] - starts[k] + 1), int(starts[k])
 
 
 def _turns_without_guard(omega: np.ndarray, count_rad: float, period_s: float) -> bool:

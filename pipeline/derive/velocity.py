@@ -69,6 +69,8 @@ def _fit_windows(t: np.ndarray, y: np.ndarray, rows: np.ndarray, idx: np.ndarray
     dt = (t[idx] - t[rows][:, None]) / scale[:, None]
     X = dt[:, :, None] ** np.arange(p + 1)[None, None, :]                # (n, w, p+1) design matrices
     XtX = np.einsum("nwi,nwj->nij", X, X)
+    if y.ndim == 2:                                                      # several signals (columns) at once
+        return np.linalg.solve(XtX, np.einsum("nwi,nwm->nim", X, y[idx]))
     Xty = np.einsum("nwi,nw->ni", X, y[idx])
     return np.linalg.solve(XtX, Xty[:, :, None])[:, :, 0]
 
@@ -81,11 +83,12 @@ def smooth_by_phase(t: np.ndarray, y: np.ndarray, starts: np.ndarray, window: in
     the sample that reverses the command its slope jumps (dI/dt = u/La - ...).
     Each phase is fitted on its own samples plus the sample that ends it (the
     kink is at that sample, the current itself is continuous there); the
-    phase's own samples take that fit.
+    phase's own samples take that fit.  ``y`` may be (n,) or (n, m): m signals
+    smoothed with the same fits (the weights are computed once).
     """
     t = np.asarray(t, dtype=float)
     y = np.asarray(y, dtype=float)
-    out = np.empty(len(y))
+    out = np.empty(y.shape)
     bounds = list(np.asarray(starts, dtype=np.int64)) + [len(y)]
     full = []                           # phases with a whole window: fitted together below
     for a, b in zip(bounds[:-1], bounds[1:]):

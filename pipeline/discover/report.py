@@ -94,6 +94,7 @@ def localisation_png(d: Discovery) -> bytes:
     """Residual RMS (noise standard deviations, log scale) by state bin and by lag after events,
     before and after: where the disagreement lives and whether the added effects removed it."""
     from matplotlib.figure import Figure
+    from matplotlib.ticker import MaxNLocator
 
     keys = [k for k, rows in d.tables_before.items() if rows]
     n_rows = max(1, (len(keys) + 2) // 3)       # one (empty) row when no table has rows, e.g. a stuck timer
@@ -112,35 +113,69 @@ def localisation_png(d: Discovery) -> bytes:
         ax.set_yscale("log")
         ax.set_title(key.replace("_", " "), fontsize=9)
         ax.set_xlabel("lag [samples]" if "after" in key else "bin (quantiles, low to high)", fontsize=8)
+        ax.set_ylabel("residual RMS / noise sigma", fontsize=8)
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
         ax.tick_params(labelsize=7)
     for ax in axes[len(keys):]:
         ax.set_visible(False)
-    if keys:
-        axes[0].legend(fontsize=7)
+    if keys:                                   # one legend, above the panels, off the data
+        fig.legend(*axes[0].get_legend_handles_labels(), loc="upper right", ncols=4, fontsize=7, frameon=False)
     else:
         fig.text(0.5, 0.5, "no state bins or event lags to localise the residual in", ha="center", va="center")
-    fig.suptitle(f"{d.meas.name}: residual RMS / noise (1 = noise floor)", fontsize=10)
-    fig.tight_layout()
+    fig.suptitle(f"{d.meas.name}: residual RMS / noise (1 = noise floor)", fontsize=10, x=0.3)
+    fig.tight_layout(rect=(0, 0, 1, 1 - 0.3 / fig.get_figheight()))
     return _png(fig)
 
 
+OUTCOME_COLORS = {"adopted": "tab:green", "adopted, later pruned": "yellowgreen",
+                  "passed, not chosen": "tab:blue", "rejected": "0.7", "screened out": "0.85"}
+
+
+def outcomes(d: Discovery) -> list[str]:
+    """Per candidate of every round (``discovery_json``'s order): what became of it.
+
+    Several candidates of a round can pass every check; the round adopts the first
+    of them (the best held-out gain), the others are "passed, not chosen".
+    """
+    final = {e.name for e in d.effects}
+    out = []
+    for rnd in d.selection.rounds:
+        chosen = next((a for a in rnd if a.accepted), None)
+        for a in rnd:
+            name = a.fit.name if hasattr(a, "fit") else a.name
+            if not hasattr(a, "fit"):
+                out.append("screened out")
+            elif a is chosen:
+                out.append("adopted" if name in final else "adopted, later pruned")
+            else:
+                out.append("passed, not chosen" if a.accepted else "rejected")
+    return out
+
+
 def candidates_png(d: Discovery) -> bytes:
-    """Each candidate's share of held-out structure removed, per round, accepted ones filled."""
+    """Each candidate's share of held-out structure removed, per round, coloured by what became of it."""
     from matplotlib.figure import Figure
+    from matplotlib.patches import Patch
 
     rounds = d.selection.rounds
-    fig = Figure(figsize=(10, 1.0 + 2.4 * max(len(rounds), 1)))
+    fates = iter(outcomes(d))
+    fig = Figure(figsize=(10, 1.4 + 2.4 * max(len(rounds), 1)))
     axes = fig.subplots(max(len(rounds), 1), 1, squeeze=False)[:, 0]
+    seen: list[str] = []
     for ax, rnd in zip(axes, rounds):
         names = [a.fit.name if hasattr(a, "fit") else a.name for a in rnd]
         scores = [max(a.score, 0.0) for a in rnd]
-        colors = ["tab:green" if a.accepted else "0.7" for a in rnd]
-        ax.barh(names[::-1], scores[::-1], color=colors[::-1])
+        fate = [next(fates) for _ in rnd]
+        seen += [f for f in fate if f not in seen]
+        ax.barh(names[::-1], scores[::-1], color=[OUTCOME_COLORS[f] for f in fate[::-1]])
         ax.set_xlim(0, 1.05)
-        ax.set_title(f"round {rnd[0].round}: share of held-out structure removed (green: all evidence holds)",
-                     fontsize=9)
+        ax.set_title(f"round {rnd[0].round}: share of held-out structure removed", fontsize=9)
         ax.tick_params(labelsize=8)
-    fig.tight_layout()
+    axes[-1].set_xlabel("share of held-out structure removed (1 = all of it)", fontsize=8)
+    order = [f for f in OUTCOME_COLORS if f in seen]
+    fig.legend([Patch(color=OUTCOME_COLORS[f]) for f in order], order, loc="upper center", ncols=len(order),
+               fontsize=8, frameon=False)
+    fig.tight_layout(rect=(0, 0, 1, 1 - 0.35 / fig.get_figheight()))
     return _png(fig)
 
 
@@ -181,15 +216,17 @@ def markdown(d: Discovery, doc: dict) -> str:
     lines += ["", "## Residual RMS by state and after events (noise standard deviations; before -> after)", ""]
     lines += [f"![localisation]({FILES['localisation_png']})", ""] + _tables_md(d)
     lines += ["", "## Candidates", "",
-              "| round | candidate | score | value | ~95 % interval | delta BIC | failed checks |",
+              "| round | candidate | score | value | ~95 % interval | delta BIC | outcome |",
               "|---|---|---|---|---|---|---|"]
-    for c in doc["candidates"]:
+    for c, fate in zip(doc["candidates"], outcomes(d)):
         p, v = next(iter(c["parameters"].items()))
         lo, hi = c.get("interval", {}).get(p, [float("nan")] * 2)
-        failed = "screened out by the coarse scan" if c.get("screened_out") else \
-            ", ".join(k for k, ok in c["checks"].items() if not ok) or "none (accepted)"
+        failed = ", ".join(k for k, ok in c.get("checks", {}).items() if not ok)
+        result = {"screened out": "screened out by the coarse scan", "rejected": f"rejected: failed {failed}",
+                  "passed, not chosen": "passed every check, not chosen (a better candidate was adopted)",
+                  }.get(fate, fate)
         lines.append(f"| {c['round']} | `{c['name']}` | {c['score']:.3f} | {p} = {_fmt(v)} | "
-                     f"[{_fmt(lo)}, {_fmt(hi)}] | {_fmt(c.get('delta_bic', float('nan')))} | {failed} |")
+                     f"[{_fmt(lo)}, {_fmt(hi)}] | {_fmt(c.get('delta_bic', float('nan')))} | {result} |")
     lines += ["", "Score: share of the held-out structure (MSE above the noise floor) the candidate removes.", "",
               f"![signals]({FILES['signals_png']})", "", f"![residuals]({FILES['residuals_png']})", "",
               f"![candidates]({FILES['candidates_png']})", ""]

@@ -81,6 +81,10 @@ def mcap_channels(df: pd.DataFrame):
     return out
 
 
+TIME_NOTE = ("log_time = t_s, seconds since the segment's first sample; the capture's wall-clock start is not "
+             "known (the rig's clock has no date)")
+
+
 def log_time_ns(t_s: np.ndarray) -> np.ndarray:
     """MCAP log_time: the sample time since the segment's first sample, in ns."""
     return np.round(np.asarray(t_s, dtype=np.float64) * 1e9).astype(np.uint64)
@@ -91,6 +95,7 @@ def mcap_metadata(cfg: RigConfig, report: dict) -> dict[str, dict[str, str]]:
         "rig_config": {"config": json.dumps(cfg.to_dict(), sort_keys=True),
                        "sources": json.dumps(cfg.sources, sort_keys=True)},
         "recording": {"source": str(report["recording"]), "sha256": report["sha256"], "run": report["run"]},
+        "time": {"log_time": TIME_NOTE, "wall_clock": "unknown"},
     }
 
 

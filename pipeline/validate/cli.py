@@ -52,21 +52,31 @@ def validate(
 
 def gate(
     processed: Path = typer.Option(DEFAULT_PROCESSED, "--processed", help="Folder of processed runs."),
-    thresholds: Path = typer.Option(DEFAULT_THRESHOLDS, "--thresholds", help="MSE thresholds TOML."),
+    thresholds: Optional[Path] = typer.Option(
+        None, "--thresholds",
+        help=f"MSE thresholds TOML [default: {DEFAULT_THRESHOLDS}, else the built-in defaults of README.md]."),
 ) -> None:
     """Check every processed run's MSEs against its thresholds; exit 1 if any run exceeds.
+
+    Without --thresholds, raw/thresholds.toml is used when it exists, else the built-in
+    defaults (replay: theta 1e-5 rad^2, omega 5e-4 (rad/s)^2, current 1.5e-3 A^2; closed loop:
+    0.3, 1.0, 1.5e-2), and the gate says so.
 
     Example: pdr gate --thresholds raw/thresholds.toml
     """
     from rich.table import Table
 
-    from pipeline.validate.gate import gate as run_gate, load_thresholds
+    from pipeline.validate.gate import BUILTIN_SOURCE, UNITS, gate as run_gate, load_thresholds
     from pipeline.validate.console import wide_console
 
-    spec = load_thresholds(thresholds)
+    spec = load_thresholds(thresholds or DEFAULT_THRESHOLDS, missing_ok=thresholds is None)
     verdicts = run_gate(processed, spec)
     if not verdicts:
         raise PdrError("no processed runs to gate (run pdr run first)", path=processed)
+    if spec.source == BUILTIN_SOURCE:
+        typer.echo(f"gate: no {DEFAULT_THRESHOLDS}: using the built-in defaults ("
+                   + "; ".join(f"{way.replace('_', ' ')}: " + ", ".join(f"{s} {v:g} {UNITS[s]}" for s, v in t.items())
+                               for way, t in spec.default.items()) + ")")
     console = wide_console(stderr=False)
     table = Table(title=f"MSE gate ({spec.source})", caption="MSE units: theta rad^2, omega (rad/s)^2, current A^2")
     for head in ("run", "way", "signal", "MSE", "threshold", "margin", ""):
@@ -76,7 +86,7 @@ def gate(
             table.add_row(v.run, "-", "-", "-", "-", "-", f"[red]FAIL[/] {v.problem}")
             continue
         for c in v.checks:
-            margin = "-" if c.margin is None else f"{100 * c.margin:+.0f} %"
+            margin = c.margin_text()
             status = "[green]ok[/]" if c.threshold is not None and c.passed else (
                 "[red]FAIL[/]" if not c.passed else "not gated")
             table.add_row(c.run, c.way, c.signal, f"{c.mse:.4g}" if c.mse is not None else "-",

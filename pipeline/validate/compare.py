@@ -164,7 +164,8 @@ def compare(kin: pd.DataFrame, spec: PlantSpec, sims: dict[str, SimResult] | Non
 
 
 def comparison_table(kin: pd.DataFrame, sims: dict[str, SimResult]) -> pd.DataFrame:
-    """Measured beside both simulations, one row per sample (``schemas/comparison.json``)."""
+    """Measured beside both simulations and the residuals (measured - model), one row per sample
+    (``schemas/comparison.json``)."""
     cl, rp = sims["closed_loop"], sims["replay"]
     cols = {
         "t_s": column(kin, "t_s", dtype=float),
@@ -178,4 +179,9 @@ def comparison_table(kin: pd.DataFrame, sims: dict[str, SimResult]) -> pd.DataFr
     cols.update({"current_closed_loop_a": cl.current_measured, "current_replay_a": rp.current_measured,
                  "dir": logged_dir(kin), "dir_closed_loop": cl.dir.astype(np.int8),
                  "dir_replay": rp.dir.astype(np.int8)})
+    for way in ("closed_loop", "replay"):
+        cols[f"theta_residual_{way}_rad"] = cols["theta_rad"] - cols[f"theta_{way}_rad"]
+        cols[f"omega_residual_{way}_rad_s"] = cols["omega_rad_s"] - cols[f"omega_{way}_rad_s"]
+        if "current_a" in cols:
+            cols[f"current_residual_{way}_a"] = cols["current_a"] - cols[f"current_{way}_a"]
     return pd.DataFrame(cols)

@@ -12,6 +12,11 @@ with the simulator's own switching) and signal, plus per-recording overrides::
 A signal without a threshold is reported but not gated.  A run counts as
 failed when any gated MSE exceeds its threshold, and also when it has no
 ``validation.json`` (the pipeline did not get that far).
+
+Without a thresholds file the gate uses ``BUILTIN_DEFAULTS`` (the shipped
+``raw/thresholds.toml``'s defaults, which a test keeps equal): a new project
+is gated from its first run, near the virtual rig's noise floor for replay
+and loosely for the closed loop (see that file for where the numbers come from).
 """
 
 from __future__ import annotations
@@ -29,6 +34,13 @@ SIGNALS = ("theta", "omega", "current")
 UNITS = {"theta": "rad^2", "omega": "(rad/s)^2", "current": "A^2"}
 
 Thresholds = dict[str, dict[str, float]]        # way -> signal -> MSE threshold
+
+# MSE per way and signal when no thresholds file exists (units: UNITS).
+BUILTIN_DEFAULTS: Thresholds = {
+    "replay": {"theta": 1e-5, "omega": 5e-4, "current": 1.5e-3},
+    "closed_loop": {"theta": 0.3, "omega": 1.0, "current": 1.5e-2},
+}
+BUILTIN_SOURCE = "built-in defaults"
 
 
 @dataclass(frozen=True)
@@ -82,7 +94,15 @@ def parse_thresholds(data: dict, source: str) -> ThresholdFile:
                          source=source)
 
 
-def load_thresholds(path: Path) -> ThresholdFile:
+def builtin_thresholds() -> ThresholdFile:
+    return ThresholdFile(default={w: dict(v) for w, v in BUILTIN_DEFAULTS.items()}, runs={}, source=BUILTIN_SOURCE)
+
+
+def load_thresholds(path: Path | None, *, missing_ok: bool = False) -> ThresholdFile:
+    """The thresholds in ``path``; ``BUILTIN_DEFAULTS`` when there is none and ``missing_ok``
+    (the default location), a refusal when a file named by the user is missing."""
+    if path is None or (missing_ok and not Path(path).exists()):
+        return builtin_thresholds()
     if not Path(path).is_file():
         raise PdrError("thresholds file not found (expected TOML with [default.replay] etc.)", path=path)
     return parse_thresholds(read_toml(Path(path)), str(path))
@@ -106,6 +126,17 @@ class Check:
         if self.threshold is None or self.mse is None:
             return None
         return 1.0 - self.mse / self.threshold
+
+    def margin_text(self) -> str:
+        """How far from the threshold, as a ratio: "19,350x over", "3.2x under" ("-" when not gated)."""
+        if self.threshold is None or self.mse is None:
+            return "-"
+        if self.mse == 0.0:
+            return "MSE 0"
+        ratio = self.mse / self.threshold
+        over = ratio > 1.0
+        r = ratio if over else 1.0 / ratio
+        return (f"{r:,.0f}x" if r >= 100 else f"{r:.3g}x") + (" over" if over else " under")
 
 
 @dataclass(frozen=True)

@@ -1,13 +1,15 @@
 """Static overview PNG per run, for people without the viewer and for CI logs.
 
 Four panels: theta with the guards, omega, current (measured vs closed loop vs
-replay) and the (theta, omega) phase portrait.
+replay, one line "closed loop = replay" when the two coincide, the measurement
+on top) and the (theta, omega) phase portrait; 1200 x 800 px.
 
 Speed matters (one PNG per run in ``pdr run``, target >= 10 runs/s on two
 cores).  Drawing axes, ticks and labels is 80 % of a matplotlib savefig, and
 it is the same for every run of a rig: the axis limits are rounded to "nice"
-symmetric values, the rendered background (axes, ticks, guards) is cached per
-set of limits, and each run only restores it and draws its lines and title
+symmetric values (steps of ~10 %), the rendered background (axes, ticks, guards,
+legend) is cached per set of limits, and each run sets its own limits, restores
+the matching background and draws its lines and title
 (blitting) and encodes the PNG itself (``png_rgb``): ~20 ms instead of ~160 ms.
 The title, the one text that changes per run, is drawn by Pillow in matplotlib's
 own font (``_TitleStamp``): matplotlib 3.11 lays text out glyph by glyph in
@@ -30,19 +32,41 @@ from pipeline.io.atomic import write_bytes
 from pipeline.model.simulate import SimResult
 
 _COLORS = {"measured": "0.2", "closed_loop": "tab:orange", "replay": "tab:blue"}
+_LABELS = {"measured": "measured", "closed_loop": "closed loop", "replay": "replay"}
+# Drawn in this order, widest first: where all three agree each still shows (a blue band, an orange
+# core, the measurement as a thin dark line on top).
+_WIDTHS = {"replay": 2.8, "closed_loop": 1.6, "measured": 1.0}
 # kinematics column, SimResult field, axis label
 _PANELS = (("theta_rad", "theta", "theta [rad]"), ("omega_rad_s", "omega", "omega [rad/s]"),
            ("current_a", "current_measured", "current [A]"))
-# Coarse on purpose: runs of one rig then share a handful of backgrounds (each miss is a full draw).
-_NICE = (1.0, 1.5, 2.0, 3.0, 5.0, 10.0)
+# Steps of about 10 %: the axes fit the data (within 10 % plus a 2 % margin), and runs of one rig
+# still share a few backgrounds (each miss is a full draw).
+_NICE = (1.0, 1.1, 1.2, 1.3, 1.5, 1.7, 2.0, 2.2, 2.5, 3.0, 3.5, 4.0, 4.5, 5.0, 6.0, 7.0, 8.0, 9.0, 10.0)
+_MARGIN = 1.02
+# Closed loop and replay are "the same line" when they agree to this share of the signal's range:
+# far below a pixel, far above rounding (they coincide to ~1e-15 when no switch slips).
+_SAME = 1e-6
 
 
 def nice_limit(x: float) -> float:
-    """Smallest value of the 1-1.5-2-3-5 sequence (times a power of ten) >= x."""
+    """Smallest value of ``_NICE`` (times a power of ten) >= x."""
     if not math.isfinite(x) or x <= 0:
         return 1.0
     p = 10.0 ** math.floor(math.log10(x))
     return next(n * p for n in _NICE if n * p >= x * (1 - 1e-12))
+
+
+def time_limits(t: np.ndarray) -> tuple[float, float]:
+    """The time axis: the data's span rounded out to a 1-2-5 step of about 1/50 of it (24.95 s -> 0..25)."""
+    if not len(t) or not np.isfinite(t).all():
+        return 0.0, 1.0
+    t0, t1 = float(t[0]), float(t[-1])
+    span = max(t1 - t0, 1e-3)
+    p = 10.0 ** math.floor(math.log10(span / 50))
+    step = next(n * p for n in (1.0, 2.0, 5.0, 10.0) if n * p >= span / 50 * (1 - 1e-12))
+    lo = math.floor(t0 / step + 1e-9) * step
+    hi = math.ceil(t1 / step - 1e-9) * step
+    return lo, max(hi, lo + step)
 
 
 def _abs_max(*arrays: np.ndarray) -> float:
@@ -50,58 +74,103 @@ def _abs_max(*arrays: np.ndarray) -> float:
     return max(vals) if vals else 1.0
 
 
+def coincide(a: SimResult, b: SimResult) -> bool:
+    """Whether two simulations draw as one line: every plotted signal agrees to ``_SAME`` of its range."""
+    for _c, field, _l in _PANELS:
+        x, y = np.asarray(getattr(a, field), float), np.asarray(getattr(b, field), float)
+        if x.shape != y.shape:
+            return False
+        scale = max(_abs_max(x, y), 1e-12)
+        if np.nanmax(np.abs(x - y), initial=0.0) > _SAME * scale:
+            return False
+    return True
+
+
 class _Overview:
-    """One figure per process; a rendered background per set of axis limits."""
+    """One figure per process; a rendered background per set of axis limits, guard and legend.
+
+    Everything a background shows (limits, ticks, guards, legend) is set from
+    the run being drawn before the background is looked up or drawn, so a
+    figure depends only on its run, never on the runs drawn before it.
+    """
 
     def __init__(self) -> None:
         from matplotlib.backends.backend_agg import FigureCanvasAgg
         from matplotlib.figure import Figure
         from matplotlib.ticker import MaxNLocator
 
-        self.fig = Figure(figsize=(9.0, 6.0), dpi=72)
+        self.fig = Figure(figsize=(12.0, 8.0), dpi=100)
         self.canvas = FigureCanvasAgg(self.fig)
         # Fixed margins: a layout engine would cost more than drawing the lines.
-        gs = self.fig.add_gridspec(3, 2, width_ratios=[2.2, 1], left=0.08, right=0.98, bottom=0.08,
-                                   top=0.93, wspace=0.25, hspace=0.3)
+        gs = self.fig.add_gridspec(3, 2, width_ratios=[2.2, 1], left=0.07, right=0.985, bottom=0.07,
+                                   top=0.895, wspace=0.2, hspace=0.12)
         first = self.fig.add_subplot(gs[0, 0])
         self.axes = [first] + [self.fig.add_subplot(gs[i, 0], sharex=first) for i in (1, 2)]
-        self.phase = self.fig.add_subplot(gs[:, 1])
+        self.phase = self.fig.add_subplot(gs[:2, 1])
         self.lines: dict[tuple[int, str], object] = {}
         for i, (_col, _field, label) in enumerate(_PANELS):
             ax = self.axes[i]
             for way, color in _COLORS.items():
-                (self.lines[i, way],) = ax.plot([], [], color=color, lw=1.5 if way == "measured" else 1.0,
-                                                label=way.replace("_", " "), animated=True)
-            ax.set_ylabel(label)
+                (self.lines[i, way],) = ax.plot([], [], color=color, lw=_WIDTHS[way],
+                                                animated=True)
+            ax.set_ylabel(label, fontsize=11)
             ax.grid(alpha=0.3)
+            ax.margins(x=0.0)
             ax.yaxis.set_major_locator(MaxNLocator(5, symmetric=True))
+            ax.tick_params(labelsize=10)
             if i < 2:
                 ax.tick_params(labelbottom=False)
-        self.axes[0].legend(loc="upper right", fontsize=7, ncols=3)
-        self.axes[2].set_xlabel("t [s]")
-        self.phase_lines = {way: self.phase.plot([], [], color=c, lw=1.0, animated=True)[0]
-                            for way, c in _COLORS.items()}
-        self.phase.set_xlabel("theta [rad]")
-        self.phase.set_ylabel("omega [rad/s]")
+        self.axes[2].set_xlabel("t [s]", fontsize=11)
+        self.phase_lines = {way: self.phase.plot([], [], color=c, lw=_WIDTHS[way],
+                                                 animated=True)[0] for way, c in _COLORS.items()}
+        self.phase.set_xlabel("theta [rad]", fontsize=11)
+        self.phase.set_ylabel("omega [rad/s]", fontsize=11)
+        self.phase.set_title("phase portrait", fontsize=11)
+        self.phase.tick_params(labelsize=10)
         self.phase.grid(alpha=0.3)
-        self.guards = [self.axes[0].axhline(0.0, color="tab:red", lw=0.8, ls="--") for _ in range(2)]
-        self.phase_guards = [self.phase.axvline(0.0, color="tab:red", lw=0.8, ls="--") for _ in range(2)]
-        self.title = _TitleStamp(self.fig, fontsize=10.0, top=0.985)
-        self.backgrounds: dict[tuple[float, ...], object] = {}
+        self.guards = [self.axes[0].axhline(0.0, color="tab:red", lw=0.9, ls="--") for _ in range(2)]
+        self.phase_guards = [self.phase.axvline(0.0, color="tab:red", lw=0.9, ls="--") for _ in range(2)]
+        self.legend = None
+        self.phase_legend = None
+        self.legend_key: tuple[float, bool] | None = None
+        self.title = _TitleStamp(self.fig, fontsize=13.0, top=0.985)
+        self.backgrounds: dict[tuple, object] = {}
 
-    def _background(self, limits: tuple[float, ...], guard: float):
-        key = (*limits, guard)
+    def _set_background(self, limits: tuple[float, ...], guard: float, same: bool) -> None:
+        """Point every artist of the background at this run's limits, guards and legend (cheap)."""
+        t_lo, t_hi, th, om, cu = limits
+        self.axes[0].set_xlim(t_lo, t_hi)
+        for ax, lim in zip(self.axes, (th, om, cu)):
+            ax.set_ylim(-lim, lim)
+        self.phase.set_xlim(-th, th)
+        self.phase.set_ylim(-om, om)
+        for line, g in zip(self.guards, (guard, -guard)):
+            line.set_ydata([g, g])
+        for line, g in zip(self.phase_guards, (guard, -guard)):
+            line.set_xdata([g, g])
+        if self.legend_key != (guard, same):
+            self._set_legends(guard, same)
+
+    def _set_legends(self, guard: float, same: bool) -> None:
+        """Rebuilt only when the guard or the coincidence changes: a legend costs a few ms to lay out."""
+        self.legend_key = (guard, same)
+        ways = ("measured", "replay") if same else ("measured", "closed_loop", "replay")
+        handles = [self.lines[0, w] for w in ways] + [self.guards[0]]
+        labels = [("closed loop = replay" if same and w == "replay" else _LABELS[w]) for w in ways]
+        labels.append(f"guard +/-{guard:.3g} rad")
+        if self.legend is not None:
+            self.legend.remove()
+            self.phase_legend.remove()
+        # Above the time panels and below the phase portrait: off the data.
+        self.legend = self.fig.legend(handles, labels, loc="lower center", bbox_to_anchor=(0.36, 0.9),
+                                      ncols=len(labels), fontsize=11, frameon=False)
+        self.phase_legend = self.phase.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, -0.12),
+                                              ncols=1, fontsize=10, frameon=False)
+
+    def _background(self, limits: tuple[float, ...], guard: float, same: bool):
+        self._set_background(limits, guard, same)
+        key = (*limits, guard, same)
         if key not in self.backgrounds:
-            t_end, th, om, cu = limits
-            self.axes[0].set_xlim(0.0, t_end)
-            for ax, lim in zip(self.axes, (th, om, cu)):
-                ax.set_ylim(-lim, lim)
-            self.phase.set_xlim(-th, th)
-            self.phase.set_ylim(-om, om)
-            for line, g in zip(self.guards, (guard, -guard)):
-                line.set_ydata([g, g])
-            for line, g in zip(self.phase_guards, (guard, -guard)):
-                line.set_xdata([g, g])
             self.canvas.draw()
             if len(self.backgrounds) > 16:
                 self.backgrounds.clear()
@@ -113,21 +182,24 @@ class _Overview:
         measured = [column(kin, col, dtype=float, na_value=np.nan) if col in kin.columns
                     else np.full(len(t), np.nan) for col, _f, _l in _PANELS]
         simulated = {way: [getattr(sims[way], f) for _c, f, _l in _PANELS] for way in ("closed_loop", "replay")}
-        limits = (nice_limit(float(t[-1]) if len(t) else 1.0),
-                  *(nice_limit(1.08 * _abs_max(measured[i], simulated["closed_loop"][i], simulated["replay"][i]))
+        same = coincide(sims["closed_loop"], sims["replay"])
+        limits = (*time_limits(t),
+                  *(nice_limit(_MARGIN * _abs_max(measured[i], simulated["closed_loop"][i], simulated["replay"][i]))
                     for i in range(3)))
-        self.canvas.restore_region(self._background(limits, guard))
+        self.canvas.restore_region(self._background(limits, guard, same))
+        # Models first, the measurement on top; one model line when the two coincide.
+        ways = ("replay",) if same else ("replay", "closed_loop")
         for i, ax in enumerate(self.axes):
-            self.lines[i, "measured"].set_data(t, measured[i])
-            for way in ("closed_loop", "replay"):
+            for way in ways:
                 self.lines[i, way].set_data(t, simulated[way][i])
-            for way in _COLORS:
                 ax.draw_artist(self.lines[i, way])
-        self.phase_lines["measured"].set_data(measured[0], measured[1])
-        for way in ("closed_loop", "replay"):
+            self.lines[i, "measured"].set_data(t, measured[i])
+            ax.draw_artist(self.lines[i, "measured"])
+        for way in ways:
             self.phase_lines[way].set_data(simulated[way][0], simulated[way][1])
-        for line in self.phase_lines.values():
-            self.phase.draw_artist(line)
+            self.phase.draw_artist(self.phase_lines[way])
+        self.phase_lines["measured"].set_data(measured[0], measured[1])
+        self.phase.draw_artist(self.phase_lines["measured"])
         rgb = np.asarray(self.canvas.buffer_rgba())[..., :3]
         self.title.stamp(rgb, title)
         return png_rgb(rgb)

@@ -2,8 +2,9 @@
 
 ``validate_run(paths)`` reads ``kinematics.parquet`` and the rig configuration
 stored at ingest (``rig.json``), runs the pure comparison (``compare.py``) and
-writes ``validation.json``, ``comparison.parquet``, ``<run>.rrd`` and
-``overview.png`` into ``processed/<run>/``, each atomically.
+writes ``validation.json``, ``comparison.parquet``, ``comparison.mcap``
+(Foxglove), ``<run>.rrd`` and ``overview.png`` into ``processed/<run>/``, each
+atomically.
 """
 
 from __future__ import annotations
@@ -112,7 +113,7 @@ def write_comparison(target: Path, table: pd.DataFrame) -> None:
 
 
 def validate_run(paths: RunPaths, model_override: ModelOverride = None, *, rrd: bool = True,
-                 png: bool = True, derived: dict[str, pd.DataFrame] | None = None, verify: bool = True) -> dict:
+                 png: bool = True, mcap: bool = True, derived: dict[str, pd.DataFrame] | None = None, verify: bool = True) -> dict:
     """Validate one derived run; returns the summary row (``summary_row``) plus ``timing_s``.
 
     ``derived``: the derive stage's tables just written for this run (keys
@@ -121,6 +122,7 @@ def validate_run(paths: RunPaths, model_override: ModelOverride = None, *, rrd: 
     ``verify=False`` leaves ``rerun rrd verify`` of the ``.rrd`` to the caller
     (``pdr run`` verifies a worker's files in one call before stamping them).
     """
+    from pipeline.validate.mcap_log import write_comparison_mcap
     from pipeline.validate.plots import write_overview
     from pipeline.validate.rerun_log import write_rrd
 
@@ -145,7 +147,10 @@ def validate_run(paths: RunPaths, model_override: ModelOverride = None, *, rrd: 
     })
     t3 = time.perf_counter()
     write_json(paths.validation, validation)
-    write_comparison(paths.comparison, comparison_table(kin, sims))
+    table = comparison_table(kin, sims)
+    write_comparison(paths.comparison, table)
+    if mcap:
+        write_comparison_mcap(paths.comparison_mcap, paths.name, kin, table, validation["model"])
     t4 = time.perf_counter()
     if rrd:
         panels = derived_tables(paths) if derived is None else panel_tables(derived)
@@ -153,17 +158,22 @@ def validate_run(paths: RunPaths, model_override: ModelOverride = None, *, rrd: 
                   period=spec.period_s)
     t5 = time.perf_counter()
     if png:
-        title = (f"{paths.name}   MSE replay: theta {_short(validation, 'replay', 'theta')}, "
-                 f"omega {_short(validation, 'replay', 'omega')}, current {_short(validation, 'replay', 'current')}")
-        write_overview(paths.overview_png, title, kin, sims, spec.guard_rad)
+        write_overview(paths.overview_png, overview_title(paths.name, validation), kin, sims, spec.guard_rad)
     t6 = time.perf_counter()
     timing.update(load=t1 - t0, simulate=t2 - t1, metrics=t3 - t2, write_tables=t4 - t3, rrd=t5 - t4, png=t6 - t5)
     return {**summary_row(validation), "timing_s": timing}
 
 
-def _short(validation: dict, way: str, signal: str) -> str:
-    e = validation[way]["signals"].get(signal)
-    return "-" if e is None or e["mse"] is None else f"{e['mse']:.3g}"
+_MSE_UNITS = {"theta": "rad²", "omega": "(rad/s)²", "current": "A²"}
+
+
+def overview_title(run: str, validation: dict) -> str:
+    """The overview's title: the run and its replay MSE per signal, with units."""
+    parts = []
+    for signal, unit in _MSE_UNITS.items():
+        e = validation["replay"]["signals"].get(signal)
+        parts.append(f"{signal} " + ("-" if e is None or e["mse"] is None else f"{e['mse']:.3g} {unit}"))
+    return f"{run}   MSE replay: " + ", ".join(parts)
 
 
 def summary_row(validation: dict) -> dict:

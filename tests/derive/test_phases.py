@@ -82,3 +82,40 @@ def test_empty_and_mismatched():
     assert len(infer_dir(np.zeros(0), np.zeros(0), GUARD)) == 0
     with pytest.raises(ValueError):
         infer_dir(np.zeros(2), np.zeros(3), GUARD)
+
+
+def test_an_angle_exactly_on_the_guard_reverses_the_command():
+    """The sketch's rule is theta >= guard (MODEL.md): a sample exactly on the guard reverses, one a hair
+    below does not; the phase that reached it ended at the guard."""
+    g = 0.5
+    t = np.arange(6) * 0.05
+    on = np.array([0.0, 0.2, 0.4, g, 0.45, 0.3])
+    below = np.array([0.0, 0.2, 0.4, np.nextafter(g, 0.0), 0.45, 0.3])
+    d_on, d_below = infer_dir(t, on, g), infer_dir(t, below, g)
+    assert d_on.tolist() == [1, 1, 1, -1, -1, -1]
+    assert d_below.tolist() == [1, 1, 1, 1, 1, 1]
+    phases = phase_table(t, on, np.gradient(on, t), None, d_on, g)
+    assert phases["end_reason"].tolist() == ["guard", "end of recording"]
+    assert phases["ended_at_guard"].tolist() == [True, False]
+    logged = np.array([1, 1, 1, -1, -1, -1], dtype=np.int8)
+    assert phase_table(t, below, np.gradient(below, t), None, logged, g)["end_reason"].iloc[0] == \
+        "reversed before guard"
+
+
+@pytest.mark.parametrize("seed", [0, 2])
+def test_peak_current_has_the_commands_sign_and_is_near_the_truth(seed):
+    """Against the rig's true current over the same samples: the extreme in the commanded direction."""
+    from pipeline.derive.stage import derive_tables
+
+    sig, cfg, rec = rig_run(seed=seed)
+    phases = derive_tables(sig, cfg).phases
+    true_i = rec.truth[(rec.truth["status"] == "ok") & (rec.truth["segment"] == 1)]["current_a"].to_numpy()
+    errors = []
+    for r in phases[(phases["dir"] != 0) & (phases["n_samples"] >= 6)].itertuples():
+        seg = true_i[r.first_sample:r.first_sample + r.n_samples + 1]
+        truth = r.dir * np.max(r.dir * seg)
+        assert np.sign(r.peak_current_a) == np.sign(truth)
+        assert r.end_reason != "guard" or np.sign(truth) == r.dir      # a whole phase drives its own sign
+        errors.append(r.peak_current_a - truth)
+    assert len(errors) >= 12
+    assert np.sqrt(np.mean(np.square(errors))) < 0.025 and np.max(np.abs(errors)) < 0.06   # noise sigma 27 mA

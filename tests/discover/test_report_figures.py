@@ -1,0 +1,58 @@
+"""The discovery report's figures and table say what became of each candidate: one adopted per round."""
+
+import io
+import json
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from pipeline.discover.candidates import parameter_of
+from pipeline.discover.report import OUTCOME_COLORS, candidates_png, markdown, outcomes
+from pipeline.discover.stage import discover, discovery_json
+from pipeline.model.effects import make_effect
+from tests.discover.synthetic import rig_kinematics
+
+
+@pytest.fixture(scope="module")
+def backlash_discovery(tmp_path_factory):
+    kin, cfg, csv = rig_kinematics((make_effect("backlash", {parameter_of("backlash"): 0.08}),), seed=11,
+                                   work=tmp_path_factory.mktemp("backlash"))
+    d = discover(kin, cfg, "rec")
+    return d, json.loads(json.dumps(discovery_json(d, str(csv)), default=float))
+
+
+def test_one_candidate_adopted_per_round_the_others_named_for_what_they_are(backlash_discovery):
+    d, doc = backlash_discovery
+    fates = outcomes(d)
+    assert len(fates) == len(doc["candidates"])
+    assert [e.name for e in d.effects] == ["backlash"]
+    for round_ in {c["round"] for c in doc["candidates"]}:
+        idx = [i for i, c in enumerate(doc["candidates"]) if c["round"] == round_]
+        adopted = [i for i in idx if fates[i].startswith("adopted")]
+        passing = [i for i in idx if doc["candidates"][i]["accepted"]]
+        assert len(adopted) == (1 if passing else 0)
+        assert adopted == passing[:1]                           # the best of those that passed every check
+        for i in passing[1:]:
+            assert fates[i] == "passed, not chosen"
+    assert fates.count("adopted") == len(d.effects)
+    md = markdown(d, doc)
+    assert "none (accepted)" not in md
+    rows = [line for line in md.splitlines() if line.startswith("| 1 | `")]
+    assert sum(line.endswith("| adopted |") for line in rows) == 1
+    assert next(line for line in rows if line.endswith("| adopted |")).startswith("| 1 | `backlash`")
+    for line, c in zip(rows, [c for c in doc["candidates"] if c["round"] == 1]):
+        if not c["accepted"] and not c.get("screened_out"):
+            failed = [k for k, ok in c["checks"].items() if not ok]
+            assert f"rejected: failed {', '.join(failed)}" in line
+
+
+def test_candidates_png_paints_only_the_adopted_bars_green(backlash_discovery):
+    d, _doc = backlash_discovery
+    with Image.open(io.BytesIO(candidates_png(d))) as im:
+        rgb = np.asarray(im.convert("RGB"), dtype=int)
+    green = np.all(np.abs(rgb - (44, 160, 44)) <= 3, axis=2)           # tab:green
+    rows = np.flatnonzero(green.sum(axis=1) > 100)                   # bar rows (the legend patch is short)
+    bars = np.count_nonzero(np.diff(rows) > 1) + 1 if len(rows) else 0
+    assert bars == outcomes(d).count("adopted") == 1
+    assert OUTCOME_COLORS["adopted"] == "tab:green"
