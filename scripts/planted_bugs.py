@@ -20,7 +20,7 @@ BUGS = [
     ("paper_pct vs simulated", "pipeline/validate/compare.py", "(e_sim - e_meas) / e_meas", "(e_sim - e_meas) / e_sim", "tests/validate"),
     ("centre (hi-lo)/2", "pipeline/derive/cycles.py", '"center_rad": (hi + lo) / 2.0', '"center_rad": (hi - lo) / 2.0', "tests/derive"),
     ("guard >= as > (phases)", "pipeline/derive/phases.py", 'd * theta[nxt] >= guard_rad', 'd * theta[nxt] > guard_rad', "tests/derive/test_phases.py"),
-    ("guard >= as > (the sketch's rule)", "pipeline/model/kernels.py", "if current_dir >= 0 and theta >= guard:",
+    ("guard >= as > (the sketch's rule)", "pipeline/model/loop.py", "if current_dir >= 0 and theta >= guard:",
      "if current_dir >= 0 and theta > guard:", "tests/derive/test_phases.py"),
     ("gate <= as <", "pipeline/validate/gate.py", "self.mse <= self.threshold", "self.mse < self.threshold", "tests/validate/test_gate.py"),
 ]
