@@ -117,7 +117,7 @@ def test_code_version_is_a_short_stable_hash(tmp_path, monkeypatch):
     """The hash of every source path and its bytes, computed here on a small tree; any edit changes it."""
     import hashlib
 
-    import pipeline.run as run_module
+    import pipeline.run.stamp as run_module
 
     pkg, schemas = tmp_path / "pipeline", tmp_path / "schemas"
     (pkg / "sub").mkdir(parents=True)

@@ -41,12 +41,17 @@ def residuals(meas: Measurement, sim: SimResult) -> dict[str, np.ndarray]:
     return out
 
 
+# A recording whose signal never moves (a stuck sensor or timer) has no measurable noise; its floor is
+# this instead of 0, so the ratios against it stay finite.
+MIN_FLOOR = 1e-30
+
+
 def noise_floor(meas: Measurement, sim: SimResult | None = None) -> dict[str, float]:
     """Per-sample variance of each fitted signal that no model can remove, from the recording
     itself (``pipeline.validate.noise``: white part, at least the quantisation, plus the clock's
     share for the angle), the numbers the start is weighted by.  The same for every model, so
     ``sim`` is not needed (kept for callers that pass the base model's replay)."""
-    return {s: var for s, (_, var) in meas.observed.items() if s in meas.signals}
+    return {s: max(var, MIN_FLOOR) for s, (_, var) in meas.observed.items() if s in meas.signals}
 
 
 # ---------------------------------------------------------------- signatures
