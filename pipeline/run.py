@@ -38,7 +38,7 @@ import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterator
+from typing import Callable, Iterator
 
 import typer
 
@@ -217,18 +217,19 @@ def process_chunk(items: list[tuple[Path, Stamp]], processed: Path, ingested: di
     return results
 
 
-def ingest_ahead(csv: Path, processed: Path) -> dict:
+def ingest_ahead(csv: Path, processed: Path, ingest: Callable[[], list[str]] | None = None) -> dict:
     """Ingest one recording in ``pdr run``'s own process while the workers start; never raises.
 
     Returns what ``process_chunk`` needs to skip the ingest (``runs``), its
     wall and CPU time, or ``error`` (the recording then goes to no worker).
+    ``ingest``: makes the runs and returns their names (default: ``ingest_recording`` on the file).
     """
     from pipeline.ingest.stage import ingest_recording
 
     t0, c0 = time.perf_counter(), time.process_time()
     out: dict = {"runs": [], "error": None}
     try:
-        out["runs"] = [p.name for p in ingest_recording(csv, processed).runs]
+        out["runs"] = ingest() if ingest is not None else [p.name for p in ingest_recording(csv, processed).runs]
     except PdrError as err:
         out["error"] = f"ingest: {err}"
     except Exception as err:  # a bug in pdr: still never stops the other recordings
@@ -294,6 +295,7 @@ class RunReport:
     pool_ready_s: float | None = None      # when the first worker could take a recording (from the run's start)
     ingested_ahead: int = 0                # recordings this process ingested meanwhile
     started: float = 0.0                   # perf_counter at the run's start
+    notes: list[str] = field(default_factory=list)   # what else happened (on a cluster: workers lost, re-runs)
 
     @property
     def failed(self) -> list[dict]:
@@ -463,11 +465,12 @@ def _execute(todo: list[tuple[Path, Stamp]], processed: Path, jobs: int, show_pr
 
 
 def run_pipeline(raw: Path, processed: Path, *, jobs: int = 2, force: bool = False,
-                 show_progress: bool = False, code: str | None = None) -> RunReport:
+                 show_progress: bool = False, code: str | None = None, cluster: str | None = None) -> RunReport:
     """The imperative shell of ``pdr run`` (also what the benchmark and tests call).
 
     ``code`` pins the code version in the stamps (default: ``code_version()``),
     for callers that must not see a source tree being edited as a code change.
+    ``cluster``: a dask scheduler's address; the recordings go there instead of the local pool.
     """
     raw, processed = Path(raw), Path(processed)
     if not raw.is_dir():
@@ -484,7 +487,11 @@ def run_pipeline(raw: Path, processed: Path, *, jobs: int = 2, force: bool = Fal
                 report.skipped.append(csv.name)
             else:
                 todo.append((csv, stamp))
-        if todo:
+        if todo and cluster:
+            from pipeline.cluster.execute import execute_on_cluster
+            report.ran, on_cluster = execute_on_cluster(todo, processed, cluster, show_progress, report)
+            report.notes += on_cluster.notes()
+        elif todo:
             report.ran = _execute(todo, processed, jobs, show_progress, report)
         report.removed = prune_orphans(processed, raw, recordings)
         summary_csv = processed / "summary.csv"
@@ -522,6 +529,8 @@ def print_report(report: RunReport, processed: Path) -> None:
         table = summary_table(processed)
         ran = {name for r in report.ran for name in r["runs"]}
         render_summary(table[table["run"].isin(ran)] if not table.empty else table, console)
+    for note in report.notes:
+        console.print(note)
     for r in report.failed:
         console.print(f"[red]FAILED[/] {r['recording']}: {r['error']}")
 
@@ -531,13 +540,17 @@ def run_command(
     processed: Path = typer.Option(Path("processed"), "--processed", help="Output folder."),
     jobs: int = typer.Option(min(2, os.cpu_count() or 1), "--jobs", "-j", min=1, help="Worker processes."),
     force: bool = typer.Option(False, "--force", help="Re-run every recording even if unchanged."),
+    cluster: str = typer.Option("", "--cluster", envvar="PDR_CLUSTER", show_envvar=True,
+                                help="A dask scheduler (tcp://HOST:8786): the recordings are processed by its "
+                                     "workers, the outputs written here."),
 ) -> None:
     """Run every stage (ingest, derive, validate) on every new or changed recording in raw/;
     unchanged ones are skipped. Exit status 1 if any recording failed.
 
-    Example: pdr run --raw raw --processed processed -j 2
+    Example: pdr run --raw raw --processed processed -j 2   (or --cluster tcp://HOST:8786)
     """
-    report = run_pipeline(raw, processed, jobs=jobs, force=force, show_progress=sys.stderr.isatty())
+    report = run_pipeline(raw, processed, jobs=jobs, force=force, show_progress=sys.stderr.isatty(),
+                          cluster=cluster or None)
     print_report(report, processed)
     if report.failed:
         raise typer.Exit(1)
