@@ -90,14 +90,16 @@ class _Overview:
         self.backgrounds: dict[tuple[float, ...], object] = {}
 
     def _background(self, limits: tuple[float, ...], guard: float):
+        """The background for these limits, with the axes set to them: the lines drawn over a cached
+        background must use its limits, whatever limits the previous run left on the axes."""
         key = (*limits, guard)
+        t_end, th, om, cu = limits
+        self.axes[0].set_xlim(0.0, t_end)
+        for ax, lim in zip(self.axes, (th, om, cu)):
+            ax.set_ylim(-lim, lim)
+        self.phase.set_xlim(-th, th)
+        self.phase.set_ylim(-om, om)
         if key not in self.backgrounds:
-            t_end, th, om, cu = limits
-            self.axes[0].set_xlim(0.0, t_end)
-            for ax, lim in zip(self.axes, (th, om, cu)):
-                ax.set_ylim(-lim, lim)
-            self.phase.set_xlim(-th, th)
-            self.phase.set_ylim(-om, om)
             for line, g in zip(self.guards, (guard, -guard)):
                 line.set_ydata([g, g])
             for line, g in zip(self.phase_guards, (guard, -guard)):

@@ -129,3 +129,23 @@ def test_overview_title_is_drawn_in_the_top_band_only():
     cols = np.flatnonzero((long[band].min(axis=2) < 100).any(axis=0))
     assert abs((cols[0] + cols[-1]) / 2 - blank.shape[1] / 2) < 10  # centred
     np.testing.assert_array_equal(pixels("run-a"), short)          # deterministic
+
+
+def test_overview_does_not_depend_on_the_runs_drawn_before():
+    """A worker's figure is reused: a run drawn over a cached background gets that background's axis
+    limits, not the limits of the run drawn just before (which once scaled its lines wrongly)."""
+    from pipeline.model.simulate import simulate
+    from pipeline.validate.plots import overview_png
+
+    spec = default_config().plant_spec()
+    sims = {"small": simulate(spec, duration=5.0), "large": simulate(spec, duration=12.0)}
+
+    def png(which: str, current_scale: float) -> bytes:
+        s = sims[which]
+        kin = pd.DataFrame({"t_s": s.t, "theta_rad": s.theta, "omega_rad_s": s.omega,
+                            "current_a": s.current_measured * current_scale})
+        return overview_png("r", kin, {"closed_loop": s, "replay": s}, spec.guard_rad)
+
+    first = png("small", 1.0)
+    png("large", 3.0)               # other limits: another background, the axes changed
+    assert png("small", 1.0) == first
