@@ -20,12 +20,12 @@ CONNECT_TIMEOUT_S = 10.0
 WORKER_WAIT_S = 30.0
 
 
-def connect(address: str, timeout: float = CONNECT_TIMEOUT_S):
+def connect(address: str, timeout: float | None = None):
     """A ``distributed.Client`` on ``address`` with at least one worker; a one-line error otherwise."""
     from distributed import Client
 
     try:
-        client = Client(address, timeout=timeout, set_as_default=False)
+        client = Client(address, timeout=timeout or CONNECT_TIMEOUT_S, set_as_default=False)
     except (OSError, TimeoutError, ValueError) as err:
         raise PdrError(f"cannot reach a dask scheduler there (expected tcp://HOST:PORT of a running "
                        f"`dask scheduler`): {err}", path=address) from None

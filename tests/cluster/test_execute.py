@@ -1,0 +1,71 @@
+"""``pdr run --cluster`` against a ``distributed.LocalCluster`` with worker processes: the outputs are
+those of a local run, failures are reported as locally, and a cluster that cannot be used is refused
+in one line."""
+
+import shutil
+
+import pytest
+
+from pipeline.cluster import connect as connect_module
+from pipeline.cluster.connect import WorkerCheck
+from pipeline.errors import PdrError
+from pipeline.run import run_pipeline
+from tests.cluster.helpers import CODE, differences, make_raw
+
+pytestmark = pytest.mark.cluster
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    from distributed import LocalCluster
+
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                      dashboard_address=None) as lc:
+        yield lc
+
+
+def test_cluster_run_writes_what_a_local_run_writes(cluster, tmp_path):
+    raw = tmp_path / "raw"
+    make_raw(raw, 5)
+    (raw / "garbage.csv").write_text("this is not\na capture\n")
+    (raw / "badkey.csv").write_bytes((raw / "r000.csv").read_bytes())
+    (raw / "badkey.toml").write_text("[model]\nnot_a_parameter = 1\n")
+    local = run_pipeline(raw, tmp_path / "local", jobs=2, code=CODE)
+    remote = run_pipeline(raw, tmp_path / "cluster", code=CODE, cluster=cluster.scheduler_address)
+
+    assert [(r["recording"], r["status"], r["error"]) for r in remote.ran] == \
+           [(r["recording"], r["status"], r["error"]) for r in local.ran]
+    assert {r["recording"] for r in remote.failed} == {"garbage.csv", "badkey.csv"}
+    assert differences(tmp_path / "local", tmp_path / "cluster") == []
+    assert any("2 worker(s) took part" in note for note in remote.notes)
+    assert not any("re-run" in note or "lost" in note for note in remote.notes)
+
+    # The second time nothing changed: nothing goes to the cluster.
+    again = run_pipeline(raw, tmp_path / "cluster", code=CODE, cluster=cluster.scheduler_address)
+    assert sorted(again.skipped) == [f"r{i:03d}.csv" for i in range(5)]
+    assert {r["recording"] for r in again.ran} == {"garbage.csv", "badkey.csv"}
+
+    # A recording whose raw file changed: its old stamp is replaced, a removed one's runs pruned.
+    shutil.copy(raw / "r002.csv", raw / "r001.csv")
+    (raw / "r004.csv").unlink()
+    third = run_pipeline(raw, tmp_path / "cluster", code=CODE, cluster=cluster.scheduler_address)
+    assert [r["recording"] for r in third.ran if r["status"] == "ok"] == ["r001.csv"]
+    assert third.removed == ["r004"]
+
+
+def test_workers_running_other_code_are_refused_naming_one(cluster):
+    from distributed import Client
+
+    with Client(cluster.scheduler_address, set_as_default=False) as client:
+        with pytest.raises(PdrError, match="install the same pdr on every worker") as err:
+            WorkerCheck(client, "not-this-code").result()
+    assert str(err.value).startswith("tcp://127.0.0.1:")
+
+
+def test_an_unreachable_scheduler_is_one_line(tmp_path, monkeypatch):
+    monkeypatch.setattr(connect_module, "CONNECT_TIMEOUT_S", 1.0)
+    raw = tmp_path / "raw"
+    make_raw(raw, 1)
+    with pytest.raises(PdrError, match="cannot reach a dask scheduler") as err:
+        run_pipeline(raw, tmp_path / "processed", code=CODE, cluster="tcp://127.0.0.1:9")
+    assert "\n" not in str(err.value) and str(err.value).startswith("tcp://127.0.0.1:9: ")
