@@ -29,7 +29,7 @@ class RecordingJob:
     source: str             # the raw file's path as the client names it (quoted in reports and errors)
     data: bytes             # the raw file's bytes
     config: RigConfig       # resolved on the client from its rig TOML layers
-    stamp: Stamp
+    stamp: Stamp | None = None      # pdr run's; discovery needs none
 
     @property
     def name(self) -> str:

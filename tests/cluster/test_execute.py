@@ -69,3 +69,15 @@ def test_an_unreachable_scheduler_is_one_line(tmp_path, monkeypatch):
     with pytest.raises(PdrError, match="cannot reach a dask scheduler") as err:
         run_pipeline(raw, tmp_path / "processed", code=CODE, cluster="tcp://127.0.0.1:9")
     assert "\n" not in str(err.value) and str(err.value).startswith("tcp://127.0.0.1:9: ")
+
+
+def test_discover_many_on_the_cluster_writes_what_it_writes_locally(cluster, tmp_path):
+    from pipeline.discover.many import discover_many
+    from tests.discover.test_many import make_b_rig
+
+    csvs = make_b_rig(tmp_path / "raw", 2)
+    local = discover_many(csvs, tmp_path / "local", jobs=1, rrd=False)
+    remote = discover_many(csvs, tmp_path / "cluster", cluster=cluster.scheduler_address, rrd=False)
+    assert not local.failed and not remote.failed
+    assert differences(tmp_path / "local", tmp_path / "cluster") == []
+    assert list(remote.table["verdict"]) == ["explained", "explained"]
