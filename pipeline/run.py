@@ -43,6 +43,7 @@ from typing import Callable, Iterator
 import typer
 
 from pipeline.config import config_layers_for
+from pipeline.dataset import DATASET_DIR, refresh_dataset
 from pipeline.errors import PdrError
 from pipeline.io.atomic import deferred_sync, write_json
 from pipeline.runs import RunPaths
@@ -498,6 +499,8 @@ def run_pipeline(raw: Path, processed: Path, *, jobs: int = 2, force: bool = Fal
         if todo or report.removed or not summary_csv.is_file():
             from pipeline.validate.summary import write_summary
             write_summary(processed)
+        if todo or report.removed or not (processed / DATASET_DIR).is_dir():
+            refresh_dataset(processed, changed={name for r in report.ran for name in r["runs"]})
     report.wall_s = time.perf_counter() - t0
     return report
 
