@@ -12,6 +12,8 @@ which workers were lost.
 
 from __future__ import annotations
 
+import queue
+import threading
 import time
 import uuid
 from dataclasses import dataclass, field
@@ -91,6 +93,49 @@ def _write_results(results: list[dict], processed: Path, stats: ClusterRun) -> N
             _withdraw(processed, sorted(set(before) | set(runs)))
 
 
+class _Writer:
+    """Writes what the workers return in a thread of its own, so the client keeps collecting meanwhile.
+
+    Each time it takes everything returned so far: the files, one sync, then
+    their stamps.  The busier the client (or the slower the sync), the more
+    results share one sync.
+    """
+
+    def __init__(self, processed: Path, stats: ClusterRun) -> None:
+        self._queue: queue.Queue = queue.Queue()
+        self._processed, self._stats = processed, stats
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, name="pdr-writer", daemon=True)
+        self._thread.start()
+
+    def put(self, results: list[dict]) -> None:
+        self._queue.put(results)
+
+    def close(self) -> None:
+        """Waits for everything handed over to be written; raises what the writer raised."""
+        self._queue.put(None)
+        self._thread.join()
+        if self._error is not None:
+            raise self._error
+
+    def _run(self) -> None:
+        done = False
+        while not done:
+            batch = [self._queue.get()]
+            while True:
+                try:
+                    batch.append(self._queue.get_nowait())
+                except queue.Empty:
+                    break
+            done = None in batch
+            results = [r for item in batch if item is not None for r in item]
+            if results and self._error is None:
+                try:
+                    _write_results(results, self._processed, self._stats)
+                except BaseException as err:  # handed to close(), in the caller's thread
+                    self._error = err
+
+
 def _failed(sources: list[str], error: str, processed: Path) -> list[dict]:
     """Recordings that got no worker's result: reported failed, their old outputs withdrawn."""
     info = {"runs": [], "error": error, "wall_s": 0.0, "cpu_s": 0.0}
@@ -143,6 +188,7 @@ def execute_on_cluster(todo: list[tuple[Path, Stamp]], processed: Path, address:
             fut = client.submit(run_chunk, chunk, key=f"pdr-run-{tag}-{i:05d}", pure=False)
             futures.append(fut)
             by_key[fut.key] = chunk
+        writer = _Writer(processed, stats)
         with Progress(TextColumn("[bold]pdr run"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                       TextColumn("{task.description}"), disable=not show_progress, transient=False) as bar:
             task = bar.add_task("", total=len(todo))
@@ -156,7 +202,7 @@ def execute_on_cluster(todo: list[tuple[Path, Stamp]], processed: Path, address:
                     why = (f"cluster: every worker that took it died, as many times as the scheduler allows ({err})"
                            if _lost_workers_died(err) else f"cluster: {type(err).__name__}: {err}")
                     done = _failed([job.source for job in chunk], why, processed)
-                _write_results(done, processed, stats)
+                writer.put(done)
                 results.extend(done)
                 stats.workers_seen.update(r["worker"] for r in done if r.get("worker", "local") != "local")
                 bar.advance(task, len(chunk))
@@ -165,6 +211,7 @@ def execute_on_cluster(todo: list[tuple[Path, Stamp]], processed: Path, address:
                     stats.workers_seen.update(client.nthreads())
                     busy = sum(1 for keys in client.processing().values() if keys)
                     bar.update(task, description=f"workers busy {busy} of {len(client.nthreads())}")
+        writer.close()
         rerun = client.run_on_scheduler(_suspicious, keys=list(by_key))
         for key, deaths in rerun.items():
             for job in by_key[key]:

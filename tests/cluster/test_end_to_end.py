@@ -55,6 +55,7 @@ def dask_cluster(tmp_path):
                 p.wait(timeout=10)
             except subprocess.TimeoutExpired:
                 p.kill()
+                p.wait()
 
 
 def test_pdr_run_on_a_cluster_with_a_worker_killed_matches_a_local_run(dask_cluster, tmp_path):
