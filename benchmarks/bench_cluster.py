@@ -168,18 +168,18 @@ def main(n: int = N_RECORDINGS) -> None:
               f"{1e3 * per_task_cpu:.2f} ms scheduler CPU per task")
 
         # The model: each worker (one core) does worker_cpu per recording; the one client does client_cpu
-        # (wall writing per recording bounds it too); the scheduler does per_task_cpu per task of CHUNK.
-        client_limit = 1.0 / max(client_cpu / n, clock.wall / n)
-        scheduler_limit = CHUNK / per_task_cpu
-        print(f"  limits: client {client_limit:.0f} recordings/s, scheduler {scheduler_limit:.0f} recordings/s "
-              f"({CHUNK} per task)")
+        # of CPU and, in its writer thread, write_wall of writing and syncing (the file system's share: one
+        # sync per batch of results, so it shrinks per recording when results arrive faster); the
+        # scheduler does per_task_cpu per task of CHUNK recordings.
+        limits = {"client CPU": n / client_cpu, "client writes + syncs (this disk)": n / clock.wall,
+                  "scheduler": CHUNK / per_task_cpu}
+        print("  limits (recordings/s): " + ", ".join(f"{k} {v:.0f}" for k, v in limits.items()))
         for workers in (10, 100):
-            predicted = min(workers / worker_cpu, client_limit, scheduler_limit)
-            bound = "workers" if predicted == workers / worker_cpu else (
-                "client" if predicted == client_limit else "scheduler")
+            bound, predicted = min([("workers", workers / worker_cpu), *limits.items()], key=lambda kv: kv[1])
             print(f"  predicted at {workers} workers (one core each): {predicted:.0f} recordings/s ({bound}-bound)")
-        print(f"  stops scaling at about {min(client_limit, scheduler_limit) * worker_cpu:.0f} workers")
-
+        first, rate_cap = min(limits.items(), key=lambda kv: kv[1])
+        print(f"  stops scaling at about {rate_cap * worker_cpu:.0f} workers ({first}); "
+              f"without it at {sorted(limits.values())[1] * worker_cpu:.0f}")
 
 if __name__ == "__main__":
     main(int(sys.argv[1]) if len(sys.argv) > 1 else N_RECORDINGS)

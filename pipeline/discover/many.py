@@ -93,12 +93,17 @@ def _jobs(recordings: list[Path]) -> tuple[list[tuple[RecordingJob, float]], lis
 
 
 def _executor(jobs: int, cluster: str | None) -> tuple[Executor, object | None]:
-    """A concurrent.futures executor: the cluster's (``Client.get_executor``) or the local forkserver pool."""
+    """A concurrent.futures executor: the cluster's (``Client.get_executor``), the local forkserver pool,
+    or for one job a thread of this process (no worker to start)."""
     if cluster:
         from pipeline.cluster.connect import connect
 
         client = connect(cluster)
         return client.get_executor(pure=False), client
+    if jobs <= 1:
+        from concurrent.futures import ThreadPoolExecutor
+
+        return ThreadPoolExecutor(max_workers=1), None
     from pipeline.run import _pool
 
     return _pool(jobs), None

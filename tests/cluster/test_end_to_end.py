@@ -52,7 +52,7 @@ def dask_cluster(tmp_path):
                 p.terminate()
         for p in procs:
             try:
-                p.wait(timeout=10)
+                p.wait(timeout=3)
             except subprocess.TimeoutExpired:
                 p.kill()
                 p.wait()
