@@ -4,7 +4,9 @@ Recordings go in the local runner's chunks (a few per task, so one ``rerun
 rrd verify`` checks several files), sized by the cluster's worker threads.
 A worker that dies while holding a task: the scheduler gives the task to
 another worker (up to ``distributed.scheduler.allowed-failures`` deaths, then
-``KilledWorker``, and its recordings are reported failed).  Whether a task was
+``KilledWorker``).  A chunk that keeps killing workers is split: each of its
+recordings is sent again alone, so only the one that kills a worker (a crash
+in a native library, say) is reported failed, as the local pool does.  Whether a task was
 re-run is read from the scheduler (its ``suspicious`` count: the workers that
 died holding it), so the run summary says which recordings were re-run and
 which workers were lost.
@@ -155,14 +157,18 @@ def _lost_workers_died(err: BaseException) -> bool:
 
 
 def execute_on_cluster(todo: list[tuple[Path, Stamp]], processed: Path, address: str, show_progress: bool,
-                       report: RunReport | None = None) -> tuple[list[dict], ClusterRun]:
-    """Every recording of ``todo`` through the cluster at ``address``; results as the local runner's."""
+                       report: RunReport | None = None, work=None) -> tuple[list[dict], ClusterRun]:
+    """Every recording of ``todo`` through the cluster at ``address``; results as the local runner's.
+
+    ``work``: what a worker runs on a chunk (default ``work.run_chunk``; tests pass one that crashes).
+    """
     from distributed import as_completed
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from pipeline.cluster.connect import WorkerCheck, connect
     from pipeline.cluster.work import run_chunk
 
+    work = work or run_chunk
     processed = Path(processed)
     stats = ClusterRun(address=address)
     client = connect(address)
@@ -183,22 +189,30 @@ def execute_on_cluster(todo: list[tuple[Path, Stamp]], processed: Path, address:
         stats.workers_seen.update(client.nthreads())
         threads = max(1, sum(client.nthreads().values()))
         tag = uuid.uuid4().hex[:8]
-        futures, by_key = [], {}
-        for i, chunk in enumerate(chunks(jobs, threads)):
-            fut = client.submit(run_chunk, chunk, key=f"pdr-run-{tag}-{i:05d}", pure=False)
-            futures.append(fut)
+        by_key: dict[str, list] = {}
+
+        def submit(chunk: list, key: str):
+            fut = client.submit(work, chunk, key=key, pure=False)
             by_key[fut.key] = chunk
+            return fut
+
+        futures = [submit(chunk, f"pdr-run-{tag}-{i:05d}") for i, chunk in enumerate(chunks(jobs, threads))]
         writer = _Writer(processed, stats)
         with Progress(TextColumn("[bold]pdr run"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                       TextColumn("{task.description}"), disable=not show_progress, transient=False) as bar:
             task = bar.add_task("", total=len(todo))
             bar.advance(task, len(results))
             polled = 0.0
-            for fut in as_completed(futures, loop=client.loop):
+            pending = as_completed(futures, loop=client.loop)
+            for fut in pending:
                 chunk = by_key[fut.key]
                 try:
                     done = fut.result()
                 except Exception as err:  # KilledWorker, or the task itself could not run
+                    if _lost_workers_died(err) and len(chunk) > 1:      # find the culprit: each alone
+                        for j, job in enumerate(chunk):
+                            pending.add(submit([job], f"{fut.key}-{j}"))
+                        continue
                     why = (f"cluster: every worker that took it died, as many times as the scheduler allows ({err})"
                            if _lost_workers_died(err) else f"cluster: {type(err).__name__}: {err}")
                     done = _failed([job.source for job in chunk], why, processed)

@@ -11,7 +11,7 @@ DEFAULT_PROCESSED = Path("processed")
 
 
 def discover(
-    recordings: list[str] = typer.Argument(..., metavar="RECORDING...",
+    recordings: list[str] = typer.Argument(..., metavar="RECORDING",
                                            help="A raw CSV path (ingested and derived on the fly), "
                                                 "a processed run folder or a run name; or several raw CSV "
                                                 "paths: one row each in <processed>/discovery/summary.csv, "

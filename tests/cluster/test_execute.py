@@ -81,3 +81,32 @@ def test_discover_many_on_the_cluster_writes_what_it_writes_locally(cluster, tmp
     assert not local.failed and not remote.failed
     assert differences(tmp_path / "local", tmp_path / "cluster") == []
     assert list(remote.table["verdict"]) == ["explained"]
+
+
+def test_a_recording_that_kills_every_worker_fails_alone(cluster, tmp_path):
+    """Last in this module: its workers die twice (the nannies start new ones)."""
+    from pipeline.cluster.execute import execute_on_cluster
+    from pipeline.run import stamp_for
+    from tests.cluster.poison import crash_on_poison
+
+    raw = tmp_path / "raw"
+    make_raw(raw, 15)
+    shutil.copy(raw / "r000.csv", raw / "poison.csv")     # first in name order: shares a chunk with r000
+    todo = [(csv, stamp_for(csv, CODE)) for csv in sorted(raw.glob("*.csv"))]
+    scheduler = cluster.scheduler
+    # Give up on a task after one death, and give each worker one task at a time: otherwise a task
+    # merely queued on a dying worker counts that death too, and would fail with allowed-failures 0.
+    saved = scheduler.allowed_failures, scheduler.WORKER_SATURATION
+    scheduler.allowed_failures, scheduler.WORKER_SATURATION = 0, 1.0
+    try:
+        results, stats = execute_on_cluster(todo, tmp_path / "processed", cluster.scheduler_address, False,
+                                            work=crash_on_poison)
+    finally:
+        scheduler.allowed_failures, scheduler.WORKER_SATURATION = saved
+    status = {r["recording"]: r["status"] for r in results}
+    assert status.pop("poison.csv") == "failed" and set(status.values()) == {"ok"} and len(status) == 15
+    poison = next(r for r in results if r["recording"] == "poison.csv")
+    assert poison["error"].startswith("cluster: every worker that took it died")
+    assert {"poison.csv", "r000.csv"} <= set(stats.rerun)
+    assert not (tmp_path / "processed" / "poison").exists()
+    assert (tmp_path / "processed" / "r000" / "stamp.json").is_file()
