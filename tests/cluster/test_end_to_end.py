@@ -41,7 +41,8 @@ def dask_cluster(tmp_path):
     try:
         _wait(sched_file.is_file, 60, "the scheduler file")
         workers = [subprocess.Popen([str(BIN / "dask"), "worker", "--scheduler-file", str(sched_file),
-                                     "--host", "127.0.0.1", "--nthreads", "1", "--no-nanny", "--no-dashboard"],
+                                     "--host", "127.0.0.1", "--nthreads", "1", "--no-nanny", "--no-dashboard",
+                                     "--preload", "pipeline.cluster.preload"],     # imports while the local run runs
                                     stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL) for _ in range(2)]
         procs += workers
         address = json.loads(sched_file.read_text())["address"]
