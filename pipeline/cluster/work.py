@@ -45,7 +45,7 @@ def scratch_root() -> str | None:
     return str(shm) if shm.is_dir() and os.access(shm, os.W_OK) else None
 
 
-def _ingest(job: RecordingJob, scratch: Path) -> list[str]:
+def ingest_bytes(job: RecordingJob, scratch: Path) -> list[str]:
     """``ingest_recording``'s work on bytes already read; the names of the runs made."""
     from pipeline.ingest.stage import ingest_signals
     from pipeline.ingest.write import write_run
@@ -74,7 +74,7 @@ def run_chunk(jobs: list[RecordingJob]) -> list[dict]:
         worker = "local"
     with tempfile.TemporaryDirectory(prefix="pdr-worker-", dir=scratch_root()) as tmp:
         scratch = Path(tmp)
-        ingested = {job.name: ingest_ahead(Path(job.source), scratch, lambda job=job: _ingest(job, scratch))
+        ingested = {job.name: ingest_ahead(Path(job.source), scratch, lambda job=job: ingest_bytes(job, scratch))
                     for job in jobs}
         ok = [job for job in jobs if ingested[job.name]["error"] is None]
         done = {r["recording"]: r for r in process_chunk([(Path(j.source), j.stamp) for j in ok], scratch,

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from pipeline.cluster.work import RecordingJob, _ingest, scratch_root
+from pipeline.cluster.work import RecordingJob, ingest_bytes, scratch_root
 from pipeline.errors import PdrError
 from pipeline.io.atomic import write_bytes, write_text
 
@@ -55,7 +55,7 @@ def discover_job(job: RecordingJob, rrd: bool) -> dict:
     try:
         with tempfile.TemporaryDirectory(prefix="pdr-discover-", dir=scratch_root()) as tmp:
             processed = Path(tmp) / "processed"
-            runs = [RunPaths(processed / name) for name in _ingest(job, processed)]
+            runs = [RunPaths(processed / name) for name in ingest_bytes(job, processed)]
             if not runs:
                 raise PdrError("no usable segment in the recording", path=job.source)
             for paths in runs:
