@@ -21,6 +21,9 @@ from pipeline.config import RigConfig
 from pipeline.discover.pooled import pool, standard_errors, trend
 
 RIG_SECTIONS = ("model", "effects", "drive", "controller", "encoder")
+POOLED_COLUMNS = ("rig", "effect", "parameter", "runs", "runs_found", "pooled", "lo", "hi", "method", "q", "p_agree",
+                  "agree", "i2", "tau", "trend_per_day", "trend_lo", "trend_hi", "p_trend", "change_pct", "span_days",
+                  "trend_flagged")
 DAY_S = 86400.0
 
 
@@ -79,7 +82,7 @@ def pooled_frame(table: pd.DataFrame) -> pd.DataFrame:
     """Per rig and effect parameter: runs that found it, pooled estimate and interval, agreement, trend."""
     rows = []
     if table.empty or "rig" not in table.columns:
-        return pd.DataFrame(rows)
+        return pd.DataFrame(rows, columns=list(POOLED_COLUMNS))
     done = table[table["verdict"] != "failed"]
     for rig, runs in done.groupby("rig", sort=True):
         for param in parameters(runs):
@@ -104,7 +107,7 @@ def pooled_frame(table: pd.DataFrame) -> pd.DataFrame:
             else:
                 row.update(trend_flagged=False)
             rows.append(row)
-    return pd.DataFrame(rows)
+    return pd.DataFrame(rows, columns=list(POOLED_COLUMNS))
 
 
 def findings(pooled: pd.DataFrame) -> list[str]:
