@@ -24,14 +24,17 @@ def cluster():
         yield lc
 
 
-def test_cluster_run_writes_what_a_local_run_writes(cluster, tmp_path):
+def test_cluster_run_writes_what_a_local_run_writes(cluster, tmp_path, capsys):
     raw = tmp_path / "raw"
     make_raw(raw, 3)
     (raw / "garbage.csv").write_text("this is not\na capture\n")
     (raw / "badkey.csv").write_bytes((raw / "r000.csv").read_bytes())
     (raw / "badkey.toml").write_text("[model]\nnot_a_parameter = 1\n")
     local = run_pipeline(raw, tmp_path / "local", jobs=2, code=CODE)
-    remote = run_pipeline(raw, tmp_path / "cluster", code=CODE, cluster=cluster.scheduler_address)
+    capsys.readouterr()
+    remote = run_pipeline(raw, tmp_path / "cluster", code=CODE, cluster=cluster.scheduler_address, show_progress=True)
+    progress = capsys.readouterr().out
+    assert "5/5" in progress and "workers busy" in progress and "of 2" in progress   # done of total, workers
 
     assert [(r["recording"], r["status"], r["error"]) for r in remote.ran] == \
            [(r["recording"], r["status"], r["error"]) for r in local.ran]
