@@ -77,11 +77,15 @@ def _jobs(recordings: list[Path]) -> tuple[list[tuple[RecordingJob, float]], lis
     """Each raw file read with its resolved config and modification time; unreadable ones as failures."""
     from pipeline.config import config_for_recording
 
-    jobs, failed = [], []
+    jobs, failed, seen = [], [], {}
     for csv in recordings:
         try:
             if csv.suffix.lower() != ".csv" or not csv.is_file():
                 raise PdrError("expected a raw .csv recording (several recordings: raw files only)", path=csv)
+            if csv.stem in seen:
+                raise PdrError(f"has the name of {seen[csv.stem]}, also given: runs are named after the file, "
+                               "so one of them would overwrite the other's outputs", path=csv)
+            seen[csv.stem] = str(csv)
             jobs.append((RecordingJob(source=str(csv), data=csv.read_bytes(), config=config_for_recording(csv)),
                          csv.stat().st_mtime))
         except PdrError as err:

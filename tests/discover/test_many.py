@@ -70,3 +70,15 @@ def test_discover_many_pools_one_rig_and_reports_a_bad_recording(tmp_path):
     assert not row["trend_flagged"]
     with Image.open(out / "parameters.png") as im:
         assert im.size[0] > 300 and im.size[1] > 150
+
+
+def test_recordings_that_would_share_a_run_name_or_are_not_raw_files_are_refused(tmp_path):
+    from pipeline.discover.many import _jobs
+
+    for folder in ("a", "b"):
+        (tmp_path / folder).mkdir()
+        (tmp_path / folder / "day.csv").write_text("t_ms,counts\n0,0\n")
+    jobs, failed = _jobs([tmp_path / "a" / "day.csv", tmp_path / "b" / "day.csv", tmp_path / "missing.csv"])
+    assert [job.source for job, _mtime in jobs] == [str(tmp_path / "a" / "day.csv")]
+    assert failed[0]["error"].startswith(f"{tmp_path / 'b' / 'day.csv'}: has the name of {tmp_path / 'a' / 'day.csv'}")
+    assert failed[1]["error"] == f"{tmp_path / 'missing.csv'}: expected a raw .csv recording (several recordings: raw files only)"
