@@ -40,7 +40,7 @@ def connect(address: str, timeout: float | None = None):
 
 def prepare_worker() -> str:
     """Runs on each worker: import what every recording needs, return the worker's code version."""
-    from pipeline.run import PRELOAD, code_version
+    from pipeline.cluster.runner import PRELOAD, code_version
 
     for module in PRELOAD:
         importlib.import_module(module)

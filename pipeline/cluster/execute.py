@@ -23,7 +23,7 @@ from pathlib import Path
 
 from pipeline.errors import PdrError
 from pipeline.io.atomic import deferred_sync, write_bytes
-from pipeline.run import RunReport, Stamp, _failed_ahead, _withdraw, chunks, code_version, previous_runs
+from pipeline.cluster.runner import RunReport, Stamp, chunks, code_version, failed_ahead, previous_runs, withdraw
 from pipeline.runs import RunPaths
 
 STAMP_NAME = RunPaths(Path("run")).stamp.name
@@ -92,7 +92,7 @@ def _write_results(results: list[dict], processed: Path, stats: ClusterRun) -> N
             for name in set(before) - set(runs):
                 shutil.rmtree(processed / name, ignore_errors=True)
         else:
-            _withdraw(processed, sorted(set(before) | set(runs)))
+            withdraw(processed, sorted(set(before) | set(runs)))
 
 
 class _Writer:
@@ -141,7 +141,7 @@ class _Writer:
 def _failed(sources: list[str], error: str, processed: Path) -> list[dict]:
     """Recordings that got no worker's result: reported failed, their old outputs withdrawn."""
     info = {"runs": [], "error": error, "wall_s": 0.0, "cpu_s": 0.0}
-    return [_failed_ahead(Path(source), processed, info) for source in sources]
+    return [failed_ahead(Path(source), processed, info) for source in sources]
 
 
 def _suspicious(dask_scheduler, keys: list[str]) -> dict[str, int]:

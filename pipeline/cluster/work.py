@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from pipeline.config import RigConfig
-from pipeline.run import Stamp, _failed_ahead, ingest_ahead, process_chunk
+from pipeline.cluster.runner import Stamp, failed_ahead, ingest_ahead, process_chunk
 
 SCRATCH_ENV = "PDR_SCRATCH"
 
@@ -82,7 +82,7 @@ def run_chunk(jobs: list[RecordingJob]) -> list[dict]:
         results = []
         for job in jobs:
             info = ingested[job.name]
-            result = done[job.name] if info["error"] is None else _failed_ahead(Path(job.source), scratch, info)
+            result = done[job.name] if info["error"] is None else failed_ahead(Path(job.source), scratch, info)
             files: dict[str, bytes] = {}
             if result["status"] == "ok":
                 for run in result["runs"]:

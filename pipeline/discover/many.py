@@ -108,9 +108,9 @@ def _executor(jobs: int, cluster: str | None) -> tuple[Executor, object | None]:
         from concurrent.futures import ThreadPoolExecutor
 
         return ThreadPoolExecutor(max_workers=1), None
-    from pipeline.run import _pool
+    from pipeline.cluster.runner import local_pool
 
-    return _pool(jobs), None
+    return local_pool(jobs), None
 
 
 def discover_many(recordings: list[Path], out: Path, *, jobs: int = 2, cluster: str | None = None,
