@@ -11,8 +11,11 @@ DEFAULT_PROCESSED = Path("processed")
 
 
 def discover(
-    recording: str = typer.Argument(..., help="A raw CSV path (ingested and derived on the fly), "
-                                              "a processed run folder or a run name."),
+    recordings: list[str] = typer.Argument(..., metavar="RECORDING",
+                                           help="A raw CSV path (ingested and derived on the fly), "
+                                                "a processed run folder or a run name; or several raw CSV "
+                                                "paths: one row each in <processed>/discovery/summary.csv, "
+                                                "pooled estimates and trends per effect."),
     json_out: bool = typer.Option(False, "--json", help="Print one JSON object (INTERFACE.md) on stdout."),
     adopt: bool = typer.Option(False, "--adopt", help="Write the augmented \\[effects] table into the recording's "
                                                       "sidecar TOML (raw/<name>.toml). Never done without it."),
@@ -20,11 +23,14 @@ def discover(
                                                            ".rrd (default: <processed>/discovery/<run>)."),
     processed: Path = typer.Option(DEFAULT_PROCESSED, "--processed", help="Folder of processed runs."),
     no_rrd: bool = typer.Option(False, "--no-rrd", help="Skip the Rerun recording."),
+    cluster: str = typer.Option("", "--cluster", envvar="PDR_CLUSTER", show_envvar=True,
+                                help="Several recordings: discover them on this dask scheduler's workers."),
+    jobs: int = typer.Option(2, "--jobs", "-j", min=1, help="Several recordings: local worker processes."),
 ) -> None:
     """Localise where model and measurement disagree, fit every catalogued effect, keep only what
     the evidence supports, and report the verdict (explained / none / unexplained).
 
-    Example: pdr discover raw/paper_run.csv --json
+    Example: pdr discover raw/paper_run.csv --json      (many: pdr discover raw/day*.csv)
 
     Then: pdr validate raw/paper_run.csv --model processed/discovery/paper_run/effects.toml,
     or adopt it: pdr discover raw/paper_run.csv --adopt
@@ -37,6 +43,13 @@ def discover(
     from pipeline.errors import PdrError
     from pipeline.runs import DISCOVERY_DIR, resolve_runs
 
+    if len(recordings) > 1:
+        if adopt:
+            raise PdrError("--adopt takes one recording (adopt what one run found)", key="--adopt")
+        _discover_many(recordings, out if out is not None else processed / "discovery", json_out, cluster, jobs,
+                       rrd=not no_rrd)
+        return
+    recording = recordings[0]
     item = Path(recording)
     if item.suffix.lower() == ".csv" and not item.is_file():
         raise PdrError("no such raw recording: expected a CSV file, a processed run folder or a run name",
@@ -81,6 +94,33 @@ def discover(
         typer.echo(f"adopted into {doc['adopted']}")
     elif d.effects:
         typer.echo(f"[effects] snippet: {written['toml']} (add --adopt to write it into the rig's TOML)")
+
+
+def _discover_many(recordings: list[str], out: Path, json_out: bool, cluster: str, jobs: int, rrd: bool) -> None:
+    import json
+    import sys
+
+    from pipeline.discover.across import findings
+    from pipeline.discover.many import discover_many
+
+    result = discover_many([Path(r) for r in recordings], out, jobs=jobs, cluster=cluster or None, rrd=rrd,
+                           show_progress=sys.stderr.isatty())
+    if json_out:
+        doc = {"runs": json.loads(result.table.to_json(orient="records")),
+               "pooled": json.loads(result.pooled.to_json(orient="records")),
+               "files": {k: str(v) for k, v in result.written.items()}}
+        typer.echo(json.dumps(doc, indent=2, sort_keys=True))
+    else:
+        counts = result.table["verdict"].value_counts().to_dict() if not result.table.empty else {}
+        typer.echo(f"{len(result.table)} recording(s): " + ", ".join(f"{v} {k}" for k, v in sorted(counts.items())))
+        for line in result.notes + findings(result.pooled):
+            typer.echo(line)
+        for f in result.failed:
+            typer.echo(f"FAILED {f['recording']}: {f['error']}")
+        typer.echo(f"summary: {result.written['summary']}, pooled: {result.written['pooled']}, "
+                   f"plot: {result.written['plot']}")
+    if result.failed:
+        raise typer.Exit(1)
 
 
 def _samples(path: Path) -> int:

@@ -30,13 +30,17 @@ def run_command(
     processed: Path = typer.Option(Path("processed"), "--processed", help="Output folder."),
     jobs: int = typer.Option(min(2, os.cpu_count() or 1), "--jobs", "-j", min=1, help="Worker processes."),
     force: bool = typer.Option(False, "--force", help="Re-run every recording even if unchanged."),
+    cluster: str = typer.Option("", "--cluster", envvar="PDR_CLUSTER", show_envvar=True,
+                                help="A dask scheduler (tcp://HOST:8786): the recordings are processed by its "
+                                     "workers, the outputs written here."),
 ) -> None:
     """Run every stage (ingest, derive, validate) on every new or changed recording in raw/;
     unchanged ones are skipped. Exit status 1 if any recording failed.
 
-    Example: pdr run --raw raw --processed processed -j 2
+    Example: pdr run --raw raw --processed processed -j 2   (or --cluster tcp://HOST:8786)
     """
-    report = run_pipeline(raw, processed, jobs=jobs, force=force, show_progress=sys.stderr.isatty())
+    report = run_pipeline(raw, processed, jobs=jobs, force=force, show_progress=sys.stderr.isatty(),
+                          cluster=cluster or None)
     print_report(report, processed)
     if report.failed:
         raise typer.Exit(1)

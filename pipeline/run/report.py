@@ -18,6 +18,7 @@ class RunReport:
     pool_ready_s: float | None = None      # when the first worker could take a recording (from the run's start)
     ingested_ahead: int = 0                # recordings this process ingested meanwhile
     started: float = 0.0                   # perf_counter at the run's start
+    notes: list[str] = field(default_factory=list)   # what else happened (on a cluster: workers lost, re-runs)
 
     @property
     def failed(self) -> list[dict]:
@@ -77,6 +78,8 @@ def print_report(report: RunReport, processed: Path) -> None:
         table = summary_table(processed)
         ran = {name for r in report.ran for name in r["runs"]}
         render_summary(table[table["run"].isin(ran)] if not table.empty else table, console)
+    for note in report.notes:
+        console.print(note, markup=False, highlight=False)
     for r in report.failed:     # one line each, however long: a script may grep them
         console.print("[red]FAILED[/] ", end="")
         console.print(f"{printable(r['recording'])}: {printable(r['error'])}", markup=False, highlight=False,

@@ -25,6 +25,7 @@ import threading
 import time
 from pathlib import Path
 
+from pipeline.dataset import DATASET_DIR
 from pipeline.errors import PdrError, describe_failure
 from pipeline.io.atomic import deferred_sync, remove_stale_temporaries
 from pipeline.run.lock import processed_lock
@@ -192,12 +193,14 @@ def _refused(name: str, reason: str) -> dict:
 
 
 def run_pipeline(raw: Path, processed: Path, *, jobs: int = 2, force: bool = False,
-                 show_progress: bool = False, code: str | None = None, method: str | None = None) -> RunReport:
+                 show_progress: bool = False, code: str | None = None, method: str | None = None,
+                 cluster: str | None = None) -> RunReport:
     """The imperative shell of ``pdr run`` (also what the benchmark and tests call).
 
     ``code`` pins the code version in the stamps (default: ``code_version()``),
     for callers that must not see a source tree being edited as a code change;
-    ``method`` the pool's start method (default: ``start_method()``).
+    ``method`` the pool's start method (default: ``start_method()``);
+    ``cluster`` a dask scheduler's address: the recordings go there instead of the local pool.
     """
     raw, processed = Path(raw), Path(processed)
     if not raw.is_dir():
@@ -221,7 +224,13 @@ def run_pipeline(raw: Path, processed: Path, *, jobs: int = 2, force: bool = Fal
             else:
                 todo.append((csv, stamp))
         withdrawn = sum(withdraw(processed, previous_runs(processed, raw / r["recording"])) for r in failed)
-        ran = _execute(todo, processed, jobs, show_progress, report, method) if todo else []
+        if todo and cluster:
+            from pipeline.cluster.execute import execute_on_cluster
+
+            ran, on_cluster = execute_on_cluster(todo, processed, cluster, show_progress, report)
+            report.notes += on_cluster.notes()
+        else:
+            ran = _execute(todo, processed, jobs, show_progress, report, method) if todo else []
         report.ran = sorted(ran + failed, key=lambda r: r["recording"])
         report.removed = prune_orphans(processed, raw, {c.name for c in folder.recordings} | set(folder.refused))
         if todo or withdrawn or report.removed or not (processed / SUMMARY_CSV).is_file():
@@ -231,5 +240,9 @@ def run_pipeline(raw: Path, processed: Path, *, jobs: int = 2, force: bool = Fal
             except OSError as err:      # reported beside the recordings' own results, not instead of them
                 report.ran.append({"recording": SUMMARY_CSV, "status": "failed", "runs": [], "timing_s": {},
                                    "error": f"cannot write it: {describe_failure(err, processed)}"})
+        if todo or withdrawn or report.removed or not (processed / DATASET_DIR).is_dir():
+            from pipeline.dataset import refresh_dataset
+
+            refresh_dataset(processed, changed={name for r in ran for name in r["runs"]})
     report.wall_s = time.perf_counter() - report.started
     return report

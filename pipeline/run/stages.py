@@ -13,6 +13,7 @@ import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 from pipeline.errors import describe_failure
 from pipeline.io.atomic import deferred_sync, write_json
@@ -102,18 +103,19 @@ def process_chunk(items: list, processed: Path, ingested: dict[str, dict] | None
     return results
 
 
-def ingest_ahead(csv: Path, processed: Path) -> dict:
+def ingest_ahead(csv: Path, processed: Path, ingest: Callable[[], list[str]] | None = None) -> dict:
     """Ingest one recording in ``pdr run``'s own process while the workers start; never raises.
 
     Returns what ``process_chunk`` needs to skip the ingest (``runs``), its
     wall and CPU time, or ``error`` (the recording then goes to no worker).
+    ``ingest``: makes the runs and returns their names (default: ``ingest_recording`` on the file).
     """
     from pipeline.ingest.stage import ingest_recording
 
     t0, c0 = time.perf_counter(), time.process_time()
     out: dict = {"runs": [], "error": None}
     try:
-        out["runs"] = [p.name for p in ingest_recording(csv, processed).runs]
+        out["runs"] = ingest() if ingest is not None else [p.name for p in ingest_recording(csv, processed).runs]
     except Exception as err:  # a bad input or a bug in pdr: never stops the other recordings
         out["error"] = f"ingest: {describe_failure(err, processed)}"
     out.update(wall_s=time.perf_counter() - t0, cpu_s=time.process_time() - c0)

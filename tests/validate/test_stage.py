@@ -205,3 +205,23 @@ def test_oscillation_and_energy_errors_against_an_independent_computation(tmp_pa
     # switching, draws more current than the weaker drive did
     assert v["closed_loop"]["oscillation_error"]["period_s"] < -1.0
     assert v["replay"]["energy_error"]["paper_pct"] > 5.0
+
+
+def test_overview_does_not_depend_on_the_runs_drawn_before():
+    """A worker's figure is reused: a run drawn over a cached background gets that background's axis
+    limits, not the limits of the run drawn just before (which once scaled its lines wrongly)."""
+    from pipeline.model.simulate import simulate
+    from pipeline.validate.plots import overview_png
+
+    spec = default_config().plant_spec()
+    sims = {"small": simulate(spec, duration=5.0), "large": simulate(spec, duration=12.0)}
+
+    def png(which: str, current_scale: float) -> bytes:
+        s = sims[which]
+        kin = pd.DataFrame({"t_s": s.t, "theta_rad": s.theta, "omega_rad_s": s.omega,
+                            "current_a": s.current_measured * current_scale})
+        return overview_png("r", kin, {"closed_loop": s, "replay": s}, spec.guard_rad)
+
+    first = png("small", 1.0)
+    png("large", 3.0)               # other limits: another background, the axes changed
+    assert png("small", 1.0) == first
