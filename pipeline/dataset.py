@@ -22,7 +22,7 @@ import os
 import shutil
 from pathlib import Path
 
-DATASET_DIR = "dataset"
+from pipeline.runs import DATASET_DIR  # one source: runs.py reserves the name for pdr
 TABLES = ("signals", "kinematics", "phases", "overshoot", "cycles", "comparison")
 RUNS_TABLE = "runs"
 PART = "part-0.parquet"

@@ -6,7 +6,7 @@ segment gives the run ``<stem>``; a file in which the board reset gives
 
 Run names are unique by construction: a recording whose stem could be taken
 for a segment (``foo-seg1.csv``) or for one of the pipeline's own entries in
-``processed/`` (``discovery``, ``summary.csv``, hidden names such as the lock)
+``processed/`` (``discovery``, ``summary.csv``, ``dataset``, hidden names such as the lock)
 is refused by ``check_recording_name``, as is one whose run folder's files
 could not be named on a common file system.  Two recordings whose stems differ
 only in case are told apart by the raw-folder scan (``pipeline.run.recordings``).
@@ -36,7 +36,8 @@ def check_name(name: str) -> str:
 LOCK_NAME = ".pdr.lock"                 # processed/.pdr.lock: the lock every writing command holds
 DISCOVERY_DIR = "discovery"             # processed/discovery/<run>/: pdr discover's default output
 SUMMARY_CSV = "summary.csv"             # processed/summary.csv: one row per run
-RESERVED_NAMES = (DISCOVERY_DIR, SUMMARY_CSV)
+DATASET_DIR = "dataset"                 # processed/dataset/<table>/run=<run>/: every run as one dataset
+RESERVED_NAMES = (DISCOVERY_DIR, SUMMARY_CSV, DATASET_DIR)
 SEGMENT_SUFFIX = re.compile(r"-seg[0-9]+$")
 # A run's longest file name is ".<run>.mcap.<pid>.<n>.tmp" (an atomic write's temporary): with up to
 # 40 bytes for the rest and "-segNNNN", a stem of 200 bytes stays within the usual 255-byte limit.

@@ -70,7 +70,7 @@ def test_every_bad_entry_is_one_line_and_the_good_recordings_are_processed_as_al
     assert "not recordings (only <name>.csv is read): DATA_EMPS.mat" in text
     for seed in (0, 1):
         workspace.assert_as_alone(processed, seed)
-    assert sorted(p.name for p in processed.iterdir()) == [".pdr.lock", "good0", "good1", "summary.csv"]
+    assert sorted(p.name for p in processed.iterdir()) == [".pdr.lock", "dataset", "good0", "good1", "summary.csv"]
     assert snapshot(raw) == before
 
     # a second run: every good recording unchanged and skipped, every bad entry refused again
