@@ -9,6 +9,7 @@ atomically.
 
 from __future__ import annotations
 
+import json
 import math
 import time
 from dataclasses import asdict
@@ -52,6 +53,16 @@ def resolve_model(cfg: RigConfig, override: ModelOverride) -> tuple[PlantSpec, s
     if not path.is_file():
         raise PdrError("model file not found (expected a TOML with [model] and/or [effects])", path=path)
     return resolve_config([path], base=cfg).plant_spec(), str(path)
+
+
+def _wall_clock_start(paths: RunPaths) -> str | None:
+    """The terminal's stamp of this run's first sample, from the ingest report (None when unknown)."""
+    try:
+        report = json.loads(paths.ingest_report.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    return next((seg.get("wall_clock_start") for seg in report.get("segments", []) if seg.get("run") == paths.name),
+                None)
 
 
 def _model_json(spec: PlantSpec, source: str) -> dict:
@@ -150,7 +161,8 @@ def validate_run(paths: RunPaths, model_override: ModelOverride = None, *, rrd: 
     table = comparison_table(kin, sims)
     write_comparison(paths.comparison, table)
     if mcap:
-        write_comparison_mcap(paths.comparison_mcap, paths.name, kin, table, validation["model"])
+        write_comparison_mcap(paths.comparison_mcap, paths.name, kin, table, validation["model"],
+                              wall_clock_start=_wall_clock_start(paths))
     t4 = time.perf_counter()
     if rrd:
         panels = derived_tables(paths) if derived is None else panel_tables(derived)
