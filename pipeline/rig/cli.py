@@ -148,7 +148,14 @@ def serve(
 
     Example: pdr rig serve --pty --speed 10 --toml raw/demo.toml &   then   pdr record /dev/pts/N --name demo
     """
+    import importlib.util
+
     from pipeline.io.atomic import write_text
+
+    if importlib.util.find_spec("termios") is None:       # Windows: no pseudo-terminals
+        raise PdrError("pdr rig serve --pty needs a POSIX pseudo-terminal (Linux, macOS); on Windows a "
+                       "virtual COM-port pair (e.g. com0com) and pdr rig make are the way to try pdr record",
+                       key="--pty")
     from pipeline.rig.serve import PtyRig, line_schedule, serve as stream
 
     if not pty:
