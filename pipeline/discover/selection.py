@@ -30,10 +30,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pipeline.discover.candidates import (
-    Evaluator, Fit, Scan, effect_intervals, fit_candidate, folds_by_cycle, parameter_of, prune,
-    scan, sensitivity,
-)
+from pipeline.discover.candidates import Evaluator, Fit, Scan, fit_candidate, folds_by_cycle, parameter_of, prune, scan
+from pipeline.discover.joint import effect_intervals, sensitivity
 from pipeline.discover.measurement import Measurement, ambiguous_switches, settle_switches
 from pipeline.discover.residuals import events, noise_floor, residuals
 from pipeline.model.effects import CATALOGUE, Effect

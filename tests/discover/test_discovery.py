@@ -76,7 +76,8 @@ def test_two_stacked_effects_are_both_named(tmp_path):
 def test_three_stacked_effects_each_within_20_percent_whatever_the_order(tmp_path):
     """Viscous + Coulomb + loop delay at once: each named, each parameter within 20 %; the joint refit
     lands on the same values from either order of the effects."""
-    from pipeline.discover.candidates import Evaluator, joint_fit, values_of
+    from pipeline.discover.candidates import Evaluator
+    from pipeline.discover.joint import joint_fit, values_of
     from pipeline.discover.measurement import measurement_from_kinematics
     from pipeline.discover.residuals import noise_floor
 

@@ -1,0 +1,179 @@
+"""All the parameters of a model at once: the joint parameter vector, sensitivities, Gauss-Newton steps,
+the joint least-squares refit and the intervals from its information matrix.
+
+``candidates`` scans and fits one candidate at a time; whatever touches every
+parameter of every effect together lives here (an effect may have several).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from pipeline.discover.residuals import residuals
+from pipeline.model.effects import Effect, Param
+
+# ------------------------------------------------------------------ the joint parameter vector
+# Every parameter of every effect in a model, in order: what sensitivities, Gauss-Newton steps and
+# intervals run over (an effect may have several parameters).
+
+def coordinates(effects: tuple[Effect, ...]) -> list[tuple[int, Param]]:
+    return [(i, p) for i, e in enumerate(effects) for p in e.PARAMS]
+
+
+def values_of(effects: tuple[Effect, ...]) -> np.ndarray:
+    return np.array([e.parameters[p.name] for i, p in coordinates(effects) for e in (effects[i],)])
+
+
+def with_values(effects: tuple[Effect, ...], values: np.ndarray) -> tuple[Effect, ...]:
+    params: list[dict[str, float]] = [dict(e.parameters) for e in effects]
+    for (i, p), v in zip(coordinates(effects), values):
+        params[i][p.name] = float(v)
+    return tuple(type(e)(**ps) for e, ps in zip(effects, params))
+
+
+def first_coordinate(effects: tuple[Effect, ...], i: int) -> int:
+    """Index in the joint vector of effect i's first parameter."""
+    return sum(len(e.PARAMS) for e in effects[:i])
+
+
+def _clip(p: Param, v: float) -> float:
+    return float(np.clip(v, *p.bounds))
+
+
+# ------------------------------------------------------------------ sensitivities
+
+@dataclass
+class Sensitivity:
+    """Residuals at a set of effects and their derivatives with respect to each effect's parameter."""
+
+    r0: dict[str, np.ndarray]
+    jac: list[dict[str, np.ndarray]]      # one per effect, per signal
+
+
+def _step(p: Param, v: float) -> float:
+    lo_b, hi_b = p.bounds
+    return max(abs(v) * 1e-3, (hi_b - lo_b) * 1e-6)
+
+
+def sensitivity(ev, effects: tuple[Effect, ...]) -> Sensitivity:
+    """Forward differences, one simulation per parameter (stepping inward at a bound or a failure)."""
+    r0 = residuals(ev.meas, ev.sim(effects))
+    jac = []
+    base = values_of(effects)
+    for c, (_, p) in enumerate(coordinates(effects)):
+        v = float(base[c])
+        lo_b, hi_b = p.bounds
+        h = _step(p, v)
+        v2 = v + h if v + h <= hi_b else v - h
+        moved = lambda x: with_values(effects, np.concatenate([base[:c], [x], base[c + 1:]]))  # noqa: E731
+        r1 = residuals(ev.meas, ev.sim(moved(v2)))
+        if not all(np.all(np.isfinite(r)) for r in r1.values()) and v - h >= lo_b:
+            v2 = v - h
+            r1 = residuals(ev.meas, ev.sim(moved(v2)))
+        jac.append({s: (r1[s] - r0[s]) / (v2 - v) for s in r0})
+    return Sensitivity(r0=r0, jac=jac)
+
+
+def gauss_newton(r0: dict[str, np.ndarray], jac: list[dict[str, np.ndarray]],
+                 mask: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(step, information matrix) of the concentrated likelihood: each signal weighted by its
+    residual variance, so rad and A need no exchange rate."""
+    k = len(jac)
+    A = np.zeros((k, k))
+    g = np.zeros(k)
+    for s, r in r0.items():
+        rm = r if mask is None else r[mask]
+        J = np.column_stack([j[s] if mask is None else j[s][mask] for j in jac])
+        w = 1.0 / (float(np.mean(rm ** 2)) + 1e-30)
+        A += w * J.T @ J
+        g += w * J.T @ rm
+    try:
+        step = -np.linalg.lstsq(A, g, rcond=None)[0]
+    except np.linalg.LinAlgError:
+        step = np.zeros(k)
+    return step, A
+
+
+def moved_effects(effects: tuple[Effect, ...], step: np.ndarray, trust: float = 0.5) -> tuple[Effect, ...]:
+    """Effects with their parameters moved by ``step``, each move limited to a trust region."""
+    out = []
+    for (_, p), v, d in zip(coordinates(effects), values_of(effects), step):
+        limit = trust * max(abs(v), _step(p, v) * 100)
+        out.append(_clip(p, v + float(np.clip(d, -limit, limit))))
+    return with_values(effects, np.array(out))
+
+
+def joint_fit(ev, effects: tuple[Effect, ...], max_nfev: int = 40) -> tuple[Effect, ...]:
+    """Every parameter of every effect at once (``scipy.optimize.least_squares``, trust region within the
+    bounds), so the result does not depend on the order the effects were found in.
+
+    Each signal's residual is divided by its RMS at the start (the concentrated
+    likelihood's weights there), each parameter by its own scale (its value, or
+    its typical size near zero); the fit is kept only if the likelihood improves.
+    """
+    if not effects:
+        return effects
+    coords = coordinates(effects)
+    scale = np.array([max(abs(v), abs(p.typical - p.absent), 1e-12) for (_, p), v in zip(coords, values_of(effects))])
+    lo = np.array([p.bounds[0] for _, p in coords]) / scale
+    hi = np.array([p.bounds[1] for _, p in coords]) / scale
+    margin = 1e-9 * (hi - lo)
+    z0 = np.clip(values_of(effects) / scale, lo + margin, hi - margin)
+    start = residuals(ev.meas, ev.sim(effects))
+    weight = {s: 1.0 / np.sqrt(float(np.mean(r * r)) + 1e-3 * ev.floor[s]) for s, r in start.items()}
+    size = sum(len(r) for r in start.values())
+
+    def weighted(z: np.ndarray) -> np.ndarray:
+        res = residuals(ev.meas, ev.sim(with_values(effects, z * scale)))
+        out = np.concatenate([weight[s] * r for s, r in res.items()])
+        return out if out.shape == (size,) and np.all(np.isfinite(out)) else np.full(size, 1e6)
+
+    try:
+        sol = least_squares(weighted, z0, bounds=(lo, hi), diff_step=1e-4, max_nfev=max_nfev)
+    except ValueError:
+        return effects
+    trial = with_values(effects, sol.x * scale)
+    return trial if ev.nll(ev.sim(trial)) < ev.nll(ev.sim(effects)) else effects
+
+
+def autocorrelation_time(r: np.ndarray, max_lag: int = 50) -> float:
+    """1 + 2 sum rho_k (to the first negative rho): how many samples one independent one is worth."""
+    r = r - r.mean()
+    den = float(np.dot(r, r))
+    if den == 0:
+        return 1.0
+    tau = 1.0
+    for k in range(1, min(max_lag, len(r) // 4)):
+        rho = float(np.dot(r[:-k], r[k:])) / den
+        if rho <= 0:
+            break
+        tau += 2.0 * rho
+    return tau
+
+
+def intervals(sens: Sensitivity, values: list[float]) -> list[tuple[float, float]]:
+    """~95 % interval of each parameter from the joint information matrix (Gauss-Newton, the
+    others free), with each signal's sample count divided by its residual's autocorrelation time."""
+    k = len(sens.jac)
+    A = np.zeros((k, k))
+    for s, r in sens.r0.items():
+        J = np.column_stack([j[s] for j in sens.jac])
+        var = float(np.mean(r ** 2)) + 1e-30
+        A += J.T @ J / (var * autocorrelation_time(r))
+    cov = np.linalg.pinv(A)
+    out = []
+    for i, v in enumerate(values):
+        half = 1.96 * float(np.sqrt(max(cov[i, i], 0.0)))
+        if not np.isfinite(half) or A[i, i] == 0.0:
+            half = float("inf")
+        out.append((v - half, v + half))
+    return out
+
+
+def effect_intervals(sens: Sensitivity, effects: tuple[Effect, ...]) -> list[tuple[float, float]]:
+    """Each effect's first-parameter interval, all parameters of all effects free."""
+    spans = intervals(sens, list(values_of(effects)))
+    return [spans[first_coordinate(effects, i)] for i in range(len(effects))]
