@@ -23,6 +23,7 @@ from pathlib import Path
 
 from pipeline.errors import PdrError
 from pipeline.io.atomic import deferred_sync, write_bytes
+from pipeline.io.queues import next_batch
 from pipeline.cluster.runner import RunReport, Stamp, chunks, code_version, failed_ahead, previous_runs, withdraw
 from pipeline.runs import RunPaths
 
@@ -123,12 +124,7 @@ class _Writer:
     def _run(self) -> None:
         done = False
         while not done:
-            batch = [self._queue.get()]
-            while True:
-                try:
-                    batch.append(self._queue.get_nowait())
-                except queue.Empty:
-                    break
+            batch = next_batch(self._queue)
             done = None in batch
             results = [r for item in batch if item is not None for r in item]
             if results and self._error is None:

@@ -49,12 +49,8 @@ def make(name: str, value: float) -> Effect:
 
 
 class Evaluator:
-    """Replays a measurement under many models, caching by plant (I0 applied afterwards).
-
-    A sensor offset changes nothing but the measured current (and, when the
-    recording does not start at rest, the initial current read through it), so
-    the plant is simulated once per initial state and the offset added.
-    """
+    """Replays a measurement under many models, caching by plant with I0 applied afterwards (a sensor
+    offset changes nothing but the measured current), and the start estimated once per model."""
 
     def __init__(self, meas: Measurement, floor: dict[str, float]) -> None:
         self.meas = meas
@@ -155,10 +151,11 @@ class Fit:
     heldout_mse_before: dict[str, float] = field(default_factory=dict)
     heldout_mse_after: dict[str, float] = field(default_factory=dict)
     heldout_nll_gain: float = 0.0     # nll decrease on held-out samples (> 0: better)
+    fitted: Effect | None = None      # the candidate with every parameter as fitted (``value`` is its first)
 
     @property
     def effect(self) -> Effect:
-        return make(self.name, self.value)
+        return self.fitted if self.fitted is not None else make(self.name, self.value)
 
     @property
     def effects(self) -> tuple[Effect, ...]:
@@ -252,11 +249,11 @@ def fit_candidate(ev: Evaluator, base: tuple[Effect, ...], name: str,
     at_grid = ev.nll(ev.sim((*moved, make(name, sc.grid[i]))))
     if nll_all > at_grid:
         value, nll_all = float(sc.grid[i]), at_grid
+    effects = (*moved, make(name, value))
     if base:
-        effects = joint_fit(ev, (*moved, make(name, value)))
+        effects = joint_fit(ev, effects)                # every parameter of the candidate too, not only its first
         moved, value = effects[:-1], value_of(effects[-1])
         nll_all = ev.nll(ev.sim(effects))
-    effects = (*moved, make(name, value))
     sens = sensitivity(ev, effects)
     base_sim = ev.sim(base)
     fold_values = []
@@ -283,7 +280,7 @@ def fit_candidate(ev: Evaluator, base: tuple[Effect, ...], name: str,
     lo, hi = min(lo, value - spread), max(hi, value + spread)
     return Fit(name=name, parameter=parameter_of(name), value=value, nll=nll_all, interval=(lo, hi),
                fold_values=tuple(fold_values), base=tuple(moved), heldout_mse_before=mse_b,
-               heldout_mse_after=mse_a, heldout_nll_gain=gain)
+               heldout_mse_after=mse_a, heldout_nll_gain=gain, fitted=effects[-1])
 
 
 def folds_by_cycle(meas: Measurement) -> tuple[np.ndarray, np.ndarray]:

@@ -23,6 +23,7 @@ import numpy as np
 
 from pipeline.config import RigConfig
 from pipeline.errors import PdrError
+from pipeline.io.queues import next_batch
 from pipeline.record.decode import LineDecoder, Samples
 
 TIMELINE = "time"
@@ -125,12 +126,7 @@ class LiveView:
         done = False
         while not done:
             started = time.monotonic()
-            batch = [self._queue.get()]
-            while True:
-                try:
-                    batch.append(self._queue.get_nowait())
-                except queue.Empty:
-                    break
+            batch = next_batch(self._queue)
             done = _END in batch
             chunks = [c for c in batch if c is not _END]
             self._log(self.decoder.feed(chunks))
