@@ -27,6 +27,8 @@ from numba.extending import overload
 
 # Two instants closer than this are the same instant (float noise of t_ms / 1000 sums).
 TIME_EPS = 1e-12
+# A logged command that is not known (a row lost over serial): the sketch's rule decides it, on the model's angle.
+UNKNOWN = 2
 
 
 @njit(cache=True)
@@ -42,12 +44,15 @@ def next_dir(current_dir: int, theta: float, guard: float) -> int:
 @njit(cache=True)
 def decide(k: int, d_prev: int, theta: float, guard: float, log: np.ndarray, closed_loop: bool,
            start: int, first: int, dir0: int) -> int:
-    """The command at sample k: the log (replay, or before the sketch starts), then the sampled guard.
+    """The command at sample k: the log (replay, or before the sketch starts), then the sampled guard;
+    an ``UNKNOWN`` entry of the log is decided by the sketch's rule too (a lost row: the loop ran there).
 
     ``start`` is the first sample the controller decides and ``first`` its mode
     there (0: decide by ``next_dir`` from ``dir0``); see ``simulate._plan``.
     """
     if not closed_loop or k < start:
+        if log[k] == UNKNOWN:
+            return d_prev if d_prev == 0 else next_dir(d_prev, theta, guard)
         return int(log[k])
     if k == start:
         return first if first != 0 else next_dir(dir0, theta, guard)

@@ -109,12 +109,35 @@ def _plan(spec: PlantSpec, t, duration: float, dir0: int, dir_log, closed_loop: 
     dir_log = np.asarray(dir_log)
     if dir_log.shape != t.shape:
         raise PdrError(f"expected one command per sample ({len(t)}), got {dir_log.shape}", key="dir_log")
-    if not np.all(np.isin(dir_log, (-1, 0, 1))):
-        raise PdrError("expected commands -1, 0 or 1", key="dir_log")
-    nz = np.flatnonzero(dir_log != 0)
+    if not np.all(np.isin(dir_log, (-1, 0, 1, loop.UNKNOWN))):
+        raise PdrError(f"expected commands -1, 0, 1 or {loop.UNKNOWN} (unknown)", key="dir_log")
+    nz = np.flatnonzero((dir_log != 0) & (dir_log != loop.UNKNOWN))
     start = int(nz[0]) if len(nz) else len(t)
     first = int(dir_log[start]) if len(nz) else 0
     return _Plan(t, dir_log.astype(np.int8), closed_loop, start, first, int(dir0))
+
+
+def with_lost_samples(t: np.ndarray, dir_log: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The sketch's own loop instants: every gap of about k sample periods (k >= 2, a row lost over
+    serial) gets its k - 1 missing instants back, evenly spaced, with an ``UNKNOWN`` command (the
+    sketch decided something there: the simulation's controller decides it again).  Returns
+    (instants, commands, index of each logged sample among them); without gaps, the inputs."""
+    t = np.asarray(t, dtype=float)
+    h = np.diff(t)
+    if len(h) < 2:
+        return t, np.asarray(dir_log), np.arange(len(t))
+    period = float(np.median(h))
+    missing = np.where(h > 1.5 * period, np.rint(h / period).astype(int) - 1, 0) if period > 0 else np.zeros(len(h), int)
+    if not missing.any():
+        return t, np.asarray(dir_log), np.arange(len(t))
+    kept = np.concatenate([[0], np.cumsum(missing + 1)])
+    t_full = np.empty(kept[-1] + 1)
+    d_full = np.full(kept[-1] + 1, loop.UNKNOWN, dtype=np.int8)
+    t_full[kept], d_full[kept] = t, dir_log
+    for i in np.flatnonzero(missing):
+        m = missing[i]
+        t_full[kept[i] + 1:kept[i + 1]] = t[i] + h[i] * np.arange(1, m + 1) / (m + 1)
+    return t_full, d_full, kept
 
 
 def simulate(spec: PlantSpec, t: np.ndarray | None = None, *, duration: float = 24.95,

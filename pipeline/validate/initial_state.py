@@ -31,7 +31,7 @@ from dataclasses import dataclass, fields, replace
 import numpy as np
 
 from pipeline.model.effects import PlantSpec
-from pipeline.model.simulate import SimResult, simulate
+from pipeline.model.simulate import SimResult, simulate, with_lost_samples
 
 # Samples the estimate uses: the first 2 s (at least 20 samples).  x0 shows most there (the rig's
 # oscillatory mode decays in ~1.2 s) and a model error has had little time to grow.  A model
@@ -75,13 +75,17 @@ class Start:
         return cls(x0=tuple(map(float, x0)), sigma=(0.0, 0.0, 0.0))
 
     def simulate(self, spec: PlantSpec, t: np.ndarray, dir_log: np.ndarray, *, closed_loop: bool) -> SimResult:
-        """``simulate`` from this start at the instants ``t`` (replay, or closed loop after the log's start)."""
+        """``simulate`` from this start at the instants ``t`` (replay, or closed loop after the log's start),
+        on the sketch's own loop instants: a row lost over serial is simulated too, its command decided
+        by the sketch's rule (``with_lost_samples``), and left out of the result."""
         t = np.asarray(t, dtype=float)
-        log = np.concatenate([np.asarray(self.commands, dtype=np.int8), np.asarray(dir_log, dtype=np.int8)])
-        t_all = np.concatenate([t[0] + np.asarray(self.lead_s, dtype=float), t])
+        dir0 = first_dir(np.concatenate([np.asarray(self.commands, dtype=np.int8), np.asarray(dir_log, dtype=np.int8)]))
+        t_loop, d_loop, kept = with_lost_samples(t, np.asarray(dir_log, dtype=np.int8))
+        log = np.concatenate([np.asarray(self.commands, dtype=np.int8), d_loop])
+        t_all = np.concatenate([t[0] + np.asarray(self.lead_s, dtype=float), t_loop])
         z = self.x0 if self.z is None else self.z
-        sim = simulate(spec, t_all, x0=z, dir0=first_dir(log), dir_log=log, closed_loop=closed_loop)
-        return drop_lead(sim, len(self.lead_s))
+        sim = drop_lead(simulate(spec, t_all, x0=z, dir0=dir0, dir_log=log, closed_loop=closed_loop), len(self.lead_s))
+        return sim if len(kept) == len(t_loop) else take(sim, kept)
 
     def to_json(self) -> dict:
         """What ``validation.json`` reports: x0 with its 1-sigma, and the pre-log commands."""
@@ -99,12 +103,15 @@ def first_dir(d: np.ndarray) -> int:
     return int(d[nz[0]]) if len(nz) else 1
 
 
+def take(sim: SimResult, index) -> SimResult:
+    """The result at the samples ``index`` (a slice or an index array)."""
+    return replace(sim, **{f.name: getattr(sim, f.name)[index] for f in fields(sim)
+                           if isinstance(getattr(sim, f.name), np.ndarray)})
+
+
 def drop_lead(sim: SimResult, m: int) -> SimResult:
     """The result without its first ``m`` samples (the pre-log instants)."""
-    if m == 0:
-        return sim
-    return replace(sim, **{f.name: getattr(sim, f.name)[m:] for f in fields(sim)
-                           if isinstance(getattr(sim, f.name), np.ndarray)})
+    return sim if m == 0 else take(sim, slice(m, None))
 
 
 def lead_offsets(delay_s: float, period_s: float) -> np.ndarray:

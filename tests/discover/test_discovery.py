@@ -73,9 +73,11 @@ def test_two_stacked_effects_are_both_named(tmp_path):
     assert d.mse_after["replay"]["current"] < 0.5 * d.mse_before["replay"]["current"]
 
 
-def test_three_stacked_effects_each_within_20_percent_whatever_the_order(tmp_path):
+def test_three_stacked_effects_each_within_20_percent_whatever_the_order(tmp_path, monkeypatch):
     """Viscous + Coulomb + loop delay at once: each named, each parameter within 20 %; the joint refit
-    lands on the same values from either order of the effects."""
+    lands on the same values from either order of the effects.  (Discovery's CPU budget is lifted: on a
+    machine running other work, BLAS threads waiting for a core count as CPU and could stop the third round.)"""
+    monkeypatch.setattr("pipeline.discover.selection.TIME_BUDGET_S", 1e9)
     from pipeline.discover.candidates import Evaluator
     from pipeline.discover.joint import joint_fit, values_of
     from pipeline.discover.measurement import measurement_from_kinematics

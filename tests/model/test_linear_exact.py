@@ -91,7 +91,7 @@ def test_next_dir_is_the_sketch_rule():
     ({"guard": "sometimes"}, "guard"),
     ({"dir_log": np.zeros(3), "t": np.array([0.0, 0.05])}, "dir_log"),
     ({"closed_loop": False}, "dir_log"),
-    ({"dir_log": np.array([0, 2]), "t": np.array([0.0, 0.05])}, "dir_log"),
+    ({"dir_log": np.array([0, 3]), "t": np.array([0.0, 0.05])}, "dir_log"),
 ])
 def test_bad_arguments_are_refused_by_name(spec, kwargs, key):
     with pytest.raises(PdrError, match=key):

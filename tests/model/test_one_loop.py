@@ -27,3 +27,35 @@ def test_replaying_the_closed_loops_commands_is_the_closed_loop_to_the_last_bit(
     assert closed.switches >= 5
     for f in ("theta", "omega", "current", "current_measured", "dir"):
         assert np.array_equal(getattr(closed, f), getattr(replay, f)), f
+
+
+def test_lost_rows_are_simulated_and_decided_by_the_sketchs_rule():
+    """A recording missing rows (one lost at a switch among them): replay on the logged samples with the
+    lost instants put back and decided by the guard equals the full closed-loop run at those samples."""
+    from pipeline.model.loop import UNKNOWN
+    from pipeline.model.simulate import with_lost_samples
+
+    spec = default_config().plant_spec()
+    t = np.arange(400) * 0.05
+    full = simulate(spec, t)
+    switch = int(np.flatnonzero(np.diff(full.dir) != 0)[2]) + 1       # the sample that decided a reversal
+    lost = np.array([switch, 120, 121, 300])
+    keep = np.setdiff1d(np.arange(len(t)), lost)
+    t_loop, d_loop, kept = with_lost_samples(t[keep], full.dir[keep])
+    assert np.allclose(t_loop, t) and np.array_equal(kept, keep)
+    assert set(d_loop[lost]) == {UNKNOWN} and np.array_equal(d_loop[keep], full.dir[keep])
+    replay = simulate(spec, t_loop, dir_log=d_loop, closed_loop=False)
+    assert np.array_equal(replay.dir, full.dir)                      # the lost reversal decided where it was
+    np.testing.assert_allclose(replay.theta[kept], full.theta[keep], rtol=0, atol=1e-12)
+    held = simulate(spec, t[keep], dir_log=full.dir[keep], closed_loop=False)   # the old way: hold over the gap
+    assert np.max(np.abs(held.theta - full.theta[keep])) > 1e-3
+
+
+def test_without_gaps_the_instants_are_the_logged_ones():
+    from pipeline.model.simulate import with_lost_samples
+
+    t = np.cumsum(np.where(np.arange(200) % 3 == 0, 0.051, 0.050))
+    d = np.ones(200, dtype=np.int8)
+    t_loop, d_loop, kept = with_lost_samples(t, d)
+    assert t_loop is t or np.array_equal(t_loop, t)
+    assert np.array_equal(d_loop, d) and np.array_equal(kept, np.arange(200))
