@@ -11,7 +11,7 @@ any recording; plus stacked pairs, clean recordings, recordings without a
 logged command, and an effect outside the catalogue (a cogging torque, injected with a custom plant).  Prints a confusion matrix, the
 parameter errors, the MSE reduction and the time per recording.
 
-    python -m benchmarks.discovery_matrix [--recordings N] [--seed S] [--out FILE] [--partial-summary]
+    python -m benchmarks.discovery_matrix [--recordings N] [--seed S] [--out FILE] [--partial-summary] [--only I,J,...]
     python -m benchmarks.discovery_matrix --shipped [--seeds N] [--quick]
 """
 
@@ -166,6 +166,8 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=None, help="randomised: the JSON results file")
     ap.add_argument("--partial-summary", action="store_true",
                     help="randomised: summarise what a stopped run finished, run nothing")
+    ap.add_argument("--only", type=str, default=None,
+                    help="randomised: comma-separated indices of the draw to run (e.g. the ones a full run got wrong)")
     args = ap.parse_args()
     if not args.shipped:
         from benchmarks import discovery_randomised
@@ -175,7 +177,8 @@ def main() -> None:
                                                    args.recordings)
             return
         discovery_randomised.main(args.recordings, args.seed, args.out or discovery_randomised.DEFAULT_OUT,
-                                  args.workers, args.timed_every)
+                                  args.workers, args.timed_every,
+                                  [int(i) for i in args.only.split(",")] if args.only else None)
         return
     rows = []
     with tempfile.TemporaryDirectory(prefix="pdr-bench-discovery-") as tmp:

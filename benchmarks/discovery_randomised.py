@@ -217,9 +217,10 @@ def summarise_partial(seed: int, out: Path, wanted: int) -> dict:
     return summary
 
 
-def main(recordings: int, seed: int, out: Path, workers: int = 2, timed_every: int = 1) -> dict:
+def main(recordings: int, seed: int, out: Path, workers: int = 2, timed_every: int = 1,
+         only: list[int] | None = None) -> dict:
     """Run (or finish: rows already in ``<out>.partial.jsonl`` for this seed are kept) and summarise;
-    the command itself runs on every ``timed_every``-th recording (1: all)."""
+    the command itself runs on every ``timed_every``-th recording (1: all); ``only``: just these indices."""
     out.parent.mkdir(parents=True, exist_ok=True)
     partial = out.with_name(out.name + ".partial.jsonl")
     done = _done_rows(partial, seed)
@@ -227,9 +228,10 @@ def main(recordings: int, seed: int, out: Path, workers: int = 2, timed_every: i
     with tempfile.TemporaryDirectory(prefix="pdr-bench-randomised-") as tmp, \
             ProcessPoolExecutor(max_workers=workers) as pool, partial.open("a") as log:
         work = Path(tmp)
+        indices = only if only is not None else list(range(recordings))
         futures = {i: pool.submit(run_one, i, seed, work, i % timed_every == 0)
-                   for i in range(recordings) if i not in done}
-        for i in range(recordings):
+                   for i in indices if i not in done}
+        for i in indices:
             r = done[i] if i in done else futures[i].result() | {"seed": seed}
             if i not in done:
                 log.write(json.dumps(r, sort_keys=True) + "\n")
