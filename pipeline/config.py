@@ -182,14 +182,17 @@ def _apply_layer(cfg: RigConfig, data: dict[str, Any], source: str) -> RigConfig
 
 
 def _check_columns(columns: ColumnsConfig, source: str) -> None:
-    """The time and encoder columns are required, and no two logical columns may name one raw column."""
-    for key in ("t_ms", "counts"):
-        if not getattr(columns, key):
-            what = ("the sample time" if key == "t_ms" else
-                    "the encoder count: every stage starts from the pinion angle (velocity, phases, guard "
-                    "overshoot, the model comparison), so a capture without it (e.g. a current-only motor step "
-                    "response) cannot be processed by pdr")
-            raise ConfigError(f"expected the name of the column holding {what}", path=source, key=f"columns.{key}")
+    """The time column is required, and the angle or the current; no two logical columns may name one raw column.
+
+    Without an encoder (``counts = ""``) what needs the angle is skipped by each stage, which says so;
+    without the current too, nothing is measured that pdr could process.
+    """
+    if not columns.t_ms:
+        raise ConfigError("expected the name of the column holding the sample time", path=source, key="columns.t_ms")
+    if not columns.counts and not columns.adc:
+        raise ConfigError("expected the name of the column holding the encoder count, or of the current "
+                          "(columns.adc): with neither, the capture has nothing pdr can process",
+                          path=source, key="columns.counts")
     named: dict[str, str] = {}
     for key in ("t_ms", "counts", "adc", "dir"):
         name = getattr(columns, key)

@@ -1,7 +1,9 @@
 """Table schemas, defined once in ``schemas/*.json``.
 
 Each schema lists columns with type, unit, range, allowed values, nullability
-and whether the column is required.  From that one definition come the Parquet
+and whether the column is required, and which optional columns come only
+together (``together``: e.g. counts and theta_rad) or of which at least one is
+present (``any_of``: a recording measures the angle, the current or both).  From that one definition come the Parquet
 schema (units in field metadata), the JSON schema of the MCAP channels, and the
 checks run before anything is written.
 """
@@ -67,6 +69,8 @@ class TableSchema:
     name: str
     description: str
     columns: tuple[Column, ...]
+    together: tuple[tuple[str, ...], ...] = ()     # each group: all of its columns or none
+    any_of: tuple[tuple[str, ...], ...] = ()       # each group: at least one of its columns
 
     def column(self, name: str) -> Column:
         for c in self.columns:
@@ -90,12 +94,29 @@ class TableSchema:
                 "properties": {c.name: c.json_schema() for c in cols},
                 "required": [c.name for c in cols]}
 
+    def presence_problem(self, names) -> str | None:
+        """What is wrong with a table's set of column names (``together``/``any_of``), or None."""
+        names = set(names)
+        for group in self.together:
+            have = [c for c in group if c in names]
+            if have and len(have) < len(group):
+                missing = next(c for c in group if c not in names)
+                return (f"table '{self.name}' has column '{have[0]}' without '{missing}' "
+                        f"(columns {', '.join(group)} come together)")
+        for group in self.any_of:
+            if not names & set(group):
+                return f"table '{self.name}' has none of the columns {', '.join(group)} (at least one is needed)"
+        return None
+
     def check(self, df: pd.DataFrame, where: str = "") -> None:
         """Refuse a table that breaks the schema, naming the column, the rows and the rule."""
         prefix = f"{where}: " if where else ""
         unknown = [c for c in df.columns if c not in {col.name for col in self.columns}]
         if unknown:
             raise SchemaError(f"{prefix}table '{self.name}' has column '{unknown[0]}' not defined in schemas/{self.name}.json")
+        problem = self.presence_problem(df.columns)
+        if problem:
+            raise SchemaError(prefix + problem)
         for col in self.columns:
             if col.name not in df.columns:
                 if col.required:
@@ -137,6 +158,7 @@ class TableSchema:
         known = {c.name for c in self.columns}
         names = set(table.column_names)
         if (names <= known and all(c.name in names for c in self.columns if c.required)
+                and self.presence_problem(names) is None
                 and all(_clears(c, table.column(c.name)) for c in self.present(names))):
             return
         self.check(table.to_pandas(), where)
@@ -196,7 +218,9 @@ def load_schema(name: str) -> TableSchema:
     data = json.loads(path.read_text(encoding="utf-8"))
     cols = tuple(Column(**{**c, "allowed": tuple(c["allowed"]) if "allowed" in c else None})
                  for c in data["columns"])
-    return TableSchema(name=data["name"], description=data.get("description", ""), columns=cols)
+    return TableSchema(name=data["name"], description=data.get("description", ""), columns=cols,
+                       together=tuple(tuple(g) for g in data.get("together", ())),
+                       any_of=tuple(tuple(g) for g in data.get("any_of", ())))
 
 
 def schema_names() -> list[str]:

@@ -131,19 +131,16 @@ def energy_terms(t: np.ndarray, current: np.ndarray, omega: np.ndarray, theta: n
     if not (len(current) == len(omega) == len(theta) == len(u) == n):
         raise ValueError("energy_terms: t, current, omega, theta and u must have the same length")
     p = spec.params
-    h = np.diff(t)
-    # u[k] is held over [t_k, t_k+1]; the current is trapezoidal within the interval
-    input_j = float(np.sum(u[:-1] * (current[:-1] + current[1:]) * h) / 2.0) if n >= 2 else float("nan")
-    copper = p.Ra * _trapezoid(current ** 2, t)                                   # Ra I^2
+    electrical = electrical_terms(t, current, u, spec, v_rms, period_s)
+    input_j, copper, magnetic = (electrical[k] for k in ("input_energy_j", "copper_loss_j", "magnetic_energy_change_j"))
     friction = _trapezoid(p.b * omega ** 2 + spec.Tc * np.abs(omega), t)          # b w^2 + Tc |w|
     mismatch = (p.Ke - p.Kt) * _trapezoid(omega * current, t)                     # (Ke - Kt) w I
     spring = _change(0.5 * p.spring_torque_per_rad * dead_zone(theta, spec.gap) ** 2)  # Ks = R^2 (K1 + K2)
     kinetic = _change(0.5 * p.J * omega ** 2)
-    magnetic = _change(0.5 * p.La * current ** 2)
     load = -spec.torque * _change(theta)                                          # work against a constant torque
     residual = input_j - copper - friction - mismatch - spring - kinetic - magnetic - load
     return {
-        "energy_paper_j": paper_energy_j(current, v_rms, period_s),
+        "energy_paper_j": electrical["energy_paper_j"],
         "input_energy_j": input_j,
         "copper_loss_j": copper,
         "friction_loss_j": friction,
@@ -154,6 +151,40 @@ def energy_terms(t: np.ndarray, current: np.ndarray, omega: np.ndarray, theta: n
         "load_work_j": load,
         "balance_residual_j": residual,
     }
+
+
+# The figures of ENERGY_KEYS that need neither the angle nor the velocity
+ELECTRICAL_KEYS = ("energy_paper_j", "input_energy_j", "copper_loss_j", "magnetic_energy_change_j")
+
+
+def electrical_terms(t: np.ndarray, current: np.ndarray, u: np.ndarray | None, spec: PlantSpec,
+                     v_rms: float, period_s: float) -> dict[str, float]:
+    """The energy figures the current alone gives (``ELECTRICAL_KEYS``; ``input_energy_j`` only with the
+    applied voltage ``u``): all a recording without an encoder has, and part of ``energy_terms``."""
+    t = np.asarray(t, dtype=float)
+    current = np.asarray(current, dtype=float)
+    p = spec.params
+    out = {"energy_paper_j": paper_energy_j(current, v_rms, period_s)}
+    if u is not None:
+        # u[k] is held over [t_k, t_k+1]; the current is trapezoidal within the interval
+        u = np.asarray(u, dtype=float)
+        out["input_energy_j"] = (float(np.sum(u[:-1] * (current[:-1] + current[1:]) * np.diff(t)) / 2.0)
+                                 if len(t) >= 2 else float("nan"))
+    out["copper_loss_j"] = p.Ra * _trapezoid(current ** 2, t)                     # Ra I^2
+    out["magnetic_energy_change_j"] = _change(0.5 * p.La * current ** 2)
+    return out
+
+
+def run_electrical_energy(t: np.ndarray, current: np.ndarray, dirs: np.ndarray | None,
+                          spec: PlantSpec) -> dict[str, float]:
+    """``run_energy`` for a recording without an encoder: ``electrical_terms`` from its commands (the
+    paper's window from the motor-on start, the input energy from the applied voltage) or, without
+    ``dirs``, over the whole run and with no input energy."""
+    u = applied_voltage(t, dirs, spec.v_drive, spec.Td) if dirs is not None else None
+    out = electrical_terms(t, current, u, spec, v_rms=spec.v_rms, period_s=spec.period_s)
+    k0 = motor_on_start(dirs) if dirs is not None else 0
+    out["energy_paper_j"] = paper_energy_j(np.asarray(current, dtype=float)[k0:], spec.v_rms, spec.period_s)
+    return out
 
 
 # Terms that depend on the current, and so carry its noise; the others (friction, spring,

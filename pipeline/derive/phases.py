@@ -117,7 +117,7 @@ def peak_current(t: np.ndarray, current: np.ndarray, d: int) -> float:
     return _signed_peak(fit) if d == 0 else float(d * np.max(d * fit))
 
 
-def phase_table(t: np.ndarray, theta: np.ndarray, omega: np.ndarray, current: np.ndarray | None,
+def phase_table(t: np.ndarray, theta: np.ndarray | None, omega: np.ndarray | None, current: np.ndarray | None,
                 dirs: np.ndarray, guard_rad: float) -> pd.DataFrame:
     """One row per phase (schemas/phases.json).
 
@@ -125,7 +125,9 @@ def phase_table(t: np.ndarray, theta: np.ndarray, omega: np.ndarray, current: np
     it (inclusive: the command held over that whole span).  ``current``: the
     logged (raw) current, or None when not logged.  ``ended_at_guard``:
     the next phase reverses the command and its first sample is at or beyond
-    the guard the phase was driving towards.
+    the guard the phase was driving towards.  ``theta``/``omega`` None (no
+    encoder): the angle columns are left out and a reversal's end reason is
+    "reversed" (whether at the guard is not known).
     """
     starts = phase_bounds(dirs)
     n = len(t)
@@ -135,27 +137,34 @@ def phase_table(t: np.ndarray, theta: np.ndarray, omega: np.ndarray, current: np
         e = nxt if nxt is not None else n - 1
         d = int(dirs[s])
         sl = slice(s, e + 1)
-        th = theta[sl]
         if nxt is None:
             reason = "end of recording"
+        elif dirs[nxt] == -d and d != 0 and theta is None:
+            reason = "reversed"
         elif dirs[nxt] == -d and d != 0:
             reason = "guard" if d * theta[nxt] >= guard_rad else "reversed before guard"
         elif dirs[nxt] == 0:
             reason = "motor off"
         else:
             reason = "motor on"
-        rows.append({
+        row = {
             "phase": j, "start_s": float(t[s]), "end_s": float(t[e]), "duration_s": float(t[e] - t[s]),
             "dir": d, "mode": MODE_OF_DIR[d], "first_sample": int(s), "n_samples": int(e - s + (nxt is None)),
-            "peak_omega_rad_s": _signed_peak(omega[sl]),
             "peak_current_a": peak_current(t[sl], current[sl], d) if current is not None else np.nan,
-            "theta_extreme_rad": float(th[np.argmax(d * th)] if d != 0 else _signed_peak(th)),
-            "ended_at_guard": reason == "guard", "end_reason": reason,
-        })
-    return frame(rows, PHASE_COLUMNS, PHASE_DTYPES)
+            "end_reason": reason,
+        }
+        if theta is not None:
+            th = theta[sl]
+            row |= {"peak_omega_rad_s": _signed_peak(omega[sl]),
+                    "theta_extreme_rad": float(th[np.argmax(d * th)] if d != 0 else _signed_peak(th)),
+                    "ended_at_guard": reason == "guard"}
+        rows.append(row)
+    columns = PHASE_COLUMNS if theta is not None else [c for c in PHASE_COLUMNS if c not in ANGLE_COLUMNS]
+    return frame(rows, columns, PHASE_DTYPES)
 
 
 PHASE_COLUMNS = ["phase", "start_s", "end_s", "duration_s", "dir", "mode", "first_sample", "n_samples",
                  "peak_omega_rad_s", "peak_current_a", "theta_extreme_rad", "ended_at_guard", "end_reason"]
+ANGLE_COLUMNS = ("peak_omega_rad_s", "theta_extreme_rad", "ended_at_guard")      # absent without an encoder
 PHASE_DTYPES = {"phase": "int32", "dir": "int8", "mode": "int8", "first_sample": "int64", "n_samples": "int64",
                 "ended_at_guard": "bool", "end_reason": "str"}

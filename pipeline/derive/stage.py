@@ -86,6 +86,10 @@ def derive_tables(signals: pd.DataFrame, cfg: RigConfig) -> DerivedTables:
     not_computed: dict[str, str] = {}
     notes: list[str] = []
     t = time_axis(signals, spec.period_s, notes)
+    if "theta_rad" not in signals:              # no encoder: what the current (and a logged dir) gives
+        from pipeline.derive.current_only import derive_current_only
+        *tables, summary = derive_current_only(signals, cfg, t, notes, CURRENT_WINDOW, CURRENT_ORDER)
+        return DerivedTables(*tables, _json_safe(summary))
     theta = column(signals, "theta_rad", dtype=float)
     current = column(signals, "current_a", dtype=float) if "current_a" in signals else None
 
@@ -274,9 +278,11 @@ def derive_and_write(paths: RunPaths) -> DerivedTables:
         signals = load_signals(paths)
     except Exception as err:  # a torn or foreign file: say which
         raise PdrError(f"cannot read as Parquet: {err}", path=paths.signals) from None
-    for col in ("t_s", "theta_rad"):
-        if col not in signals:
-            raise PdrError(f"expected column '{col}' (schemas/signals.json)", path=paths.signals, key=col)
+    if "t_s" not in signals:
+        raise PdrError("expected column 't_s' (schemas/signals.json)", path=paths.signals, key="t_s")
+    if "theta_rad" not in signals and "current_a" not in signals:
+        raise PdrError("expected column 'theta_rad' or 'current_a' (schemas/signals.json): nothing to derive",
+                       path=paths.signals, key="theta_rad")
     tables = derive_tables(signals, load_config(paths))
     for name, df, target in (("kinematics", tables.kinematics, paths.kinematics),
                              ("phases", tables.phases, paths.phases),

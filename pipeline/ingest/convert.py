@@ -73,6 +73,8 @@ def at_rest(values: dict[str, np.ndarray]) -> tuple[np.ndarray, str]:
         off = values["dir"] == 0
         settled = off & np.concatenate(([True], off[:-1]))
         return settled, "dir == 0"
+    if "counts" not in values:
+        return np.zeros(len(values["adc"]), dtype=bool), "dir == 0 or the encoder standing still, neither logged"
     counts = values["counts"]
     moved = np.flatnonzero(counts != counts[0])
     first = moved[0] if len(moved) else len(counts)
@@ -111,7 +113,8 @@ def amps(volts: np.ndarray, zero_v: float, cfg: RigConfig) -> np.ndarray:
 
 def to_signals(values: dict[str, np.ndarray], line: np.ndarray, t_s: np.ndarray, segment: int,
                cfg: RigConfig, zero: ZeroEstimate | None) -> pd.DataFrame:
-    """The ``signals`` table of one segment; columns a sketch does not log stay absent.
+    """The ``signals`` table of one segment; columns a sketch does not log stay absent (counts and
+    theta_rad too, for a capture without an encoder).
 
     ``plain_kernel.signal_rows`` computes the same columns row by row for large plain captures:
     what changes here changes there (tests hold the two to the same bits).
@@ -121,9 +124,9 @@ def to_signals(values: dict[str, np.ndarray], line: np.ndarray, t_s: np.ndarray,
         "t_raw": np.asarray(values["t_raw"], dtype=np.float64),
         "line": np.asarray(line, dtype=np.int64),
         "segment": np.full(len(line), segment, dtype=np.int32),
-        "counts": np.asarray(values["counts"], dtype=np.int64),
-        "theta_rad": values["counts"] * rad_per_count(cfg),
     }
+    if "counts" in values:
+        cols |= {"counts": np.asarray(values["counts"], dtype=np.int64), "theta_rad": values["counts"] * rad_per_count(cfg)}
     if "adc" in values and zero is not None:
         volts = values["adc"] * volts_per_step(cfg)
         cols |= {"adc": values["adc"].astype(np.int32), "current_v": volts, "current_a": amps(volts, zero.zero_v, cfg)}

@@ -152,7 +152,8 @@ def header_fields(text: str) -> list[str]:
 
 
 def layout_from_header(names: list[str], columns: ColumnsConfig, source: str, line: int) -> tuple[dict[str, int], list[str]]:
-    """Map logical columns to field positions by the names in ``[columns]``; t and counts are required."""
+    """Map logical columns to field positions by the names in ``[columns]``; t and counts (unless
+    ``counts = ""``: a capture without an encoder) are required."""
     wanted = {"t_raw": columns.t_ms, "counts": columns.counts, "adc": columns.adc, "dir": columns.dir}
     layout, notes = {}, []
     for logical, name in wanted.items():
@@ -162,20 +163,28 @@ def layout_from_header(names: list[str], columns: ColumnsConfig, source: str, li
             layout[logical] = names.index(name)
         elif logical in ("t_raw", "counts"):
             key = "t_ms" if logical == "t_raw" else "counts"
+            hint = " (or counts = \"\" when the capture has no encoder)" if key == "counts" else ""
             raise IngestError(f"no recognisable columns: expected a column named '{name}' (columns.{key}) "
-                              f"in the header, found {names}; set [columns] in the rig TOML",
+                              f"in the header, found {names}; set [columns] in the rig TOML{hint}",
                               path=source, line=line)
         else:
             notes.append(f"column '{name}' (columns.{logical}) not in the header: {logical} not logged")
+    if "counts" not in layout and "adc" not in layout:
+        raise IngestError(f"no recognisable columns: no encoder column (columns.counts = \"\") and no column named "
+                          f"'{columns.adc}' (columns.adc) in the header, found {names}: nothing pdr can process",
+                          path=source, line=line)
     return layout, notes
 
 
 def positional_layout(width: int, columns: ColumnsConfig, source: str) -> dict[str, int]:
     """No header: fields in INTERFACE.md order (t_ms, counts, adc, dir), skipping columns not logged."""
-    names = [lg for lg, name in zip(LOGICAL, (columns.t_ms, columns.counts, columns.adc, columns.dir)) if name]
-    if width < 2 or "t_raw" not in names[:1] or "counts" not in names[:2]:
+    raw = dict(zip(LOGICAL, (columns.t_ms, columns.counts, columns.adc, columns.dir)))
+    names = [lg for lg, name in raw.items() if name]
+    if width < 2 or "t_raw" not in names[:1] or len(names) < 2:
+        first, *rest = [{"t_raw": "t_ms"}.get(lg, lg) for lg in names]
+        shown = ",".join([first, *rest[:1]]) + "".join(f"[,{x}" for x in rest[1:]) + "]" * (len(rest) - 1)
         raise IngestError(f"no recognisable columns: no header line naming '{columns.t_ms}' and rows of "
-                          f"{width} field(s); expected rows t_ms,counts[,adc[,dir]]", path=source)
+                          f"{width} field(s); expected rows {shown}", path=source)
     return {lg: i for i, lg in enumerate(names[:width])}
 
 
@@ -266,8 +275,9 @@ def parse_capture(data: bytes, columns: ColumnsConfig, source: str) -> ParsedFil
     if not header_idx and len(content):
         first = header_fields(text[int(content[0])].as_py())
         if len(first) >= 2 and not any(re.fullmatch(TIME_RE, f) for f in first):
+            key = "counts" if columns.counts else "adc"
             raise IngestError(f"no recognisable columns: the header names {first}, expected '{columns.t_ms}' "
-                              f"(columns.t_ms) and '{columns.counts}' (columns.counts); set [columns] in the "
+                              f"(columns.t_ms) and '{getattr(columns, key)}' (columns.{key}); set [columns] in the "
                               f"rig TOML", path=source, line=int(content[0]) + 1)
     quarantined = list(bad_bytes)
     is_header = np.zeros(n, dtype=bool)

@@ -175,8 +175,8 @@ def read_plain_signals(data: bytes, cfg: RigConfig, source: str) -> tuple[Parsed
     if len(data) < KERNEL_MIN_BYTES:            # before the layout: small captures have theirs read once, by parse_plain
         return None
     lay = plain_layout(data, cfg.columns, source)
-    if lay is None or len(data) - lay.body_start < KERNEL_MIN_BYTES:
-        return None
+    if lay is None or len(data) - lay.body_start < KERNEL_MIN_BYTES or "counts" not in lay.layout:
+        return None             # the kernel writes the encoder columns: a capture without them goes to parse_plain
     from pipeline.ingest.plain_kernel import read_signals
     cs, span = cfg.current_sensor, COUNTER_RANGE[cfg.columns.time_unit]
     configured = cs.zero_v != "auto"

@@ -44,9 +44,9 @@ def _order_time(seg: Segment, cfg: RigConfig) -> tuple[np.ndarray, int, int | No
     return t, wraps, first_backward(t)
 
 
-def restart_points(t: np.ndarray, counts: np.ndarray, unit: str) -> np.ndarray:
+def restart_points(t: np.ndarray, counts: np.ndarray | None, unit: str) -> np.ndarray:
     """Rows where a sketch without a header line restarted: time drops to near boot, the encoder
-    count starts again at 0, and time keeps going from there.
+    count starts again at 0 (when there is an encoder: ``counts`` None), and time keeps going from there.
 
     Not a counter wrap (the time before is not within RESTART_WITHIN_S of 2**32) and not a lone
     garbled time (the next sample continues from the low value).
@@ -57,14 +57,14 @@ def restart_points(t: np.ndarray, counts: np.ndarray, unit: str) -> np.ndarray:
     k = np.flatnonzero(t[1:] < t[:-1]) + 1              # backward steps only (none in most captures)
     low = t[k] * scale < RESTART_WITHIN_S
     wrap = (t[k - 1] > span - RESTART_WITHIN_S / scale) if span else np.zeros(len(k), dtype=bool)
-    k = k[low & ~wrap & (counts[k] == 0)]
+    k = k[low & ~wrap & ((counts[k] == 0) if counts is not None else True)]
     k = k[k + 1 < len(t)]
     return k[(t[k + 1] >= t[k]) & (t[k + 1] < t[k - 1])]
 
 
 def split_restarts(seg: Segment, unit: str) -> list[Segment]:
     """One segment per logging session when the board reset without printing a header again."""
-    cuts = restart_points(seg.values["t_raw"], seg.values["counts"], unit)
+    cuts = restart_points(seg.values["t_raw"], seg.values.get("counts"), unit)
     if not len(cuts):
         return [seg]
     parts = []

@@ -149,7 +149,7 @@ def capture_report(cap: Capture) -> dict:
                   "timing": timing_stats(t, cfg.columns.time_unit, seg.line, cfg.controller.period_s),
                   "current_zero": zero.to_dict() if zero else None,
                   "adc_saturation": saturation(seg.values["adc"], cfg.current_sensor.adc_steps) if zero else None,
-                  "not_logged": [c for c in ("adc", "dir") if c not in seg.layout]}
+                  "not_logged": [c for c in ("counts", "adc", "dir") if c not in seg.layout]}
         seg_reports.append(entry)
     defects = list(parsed.notes)
     for entry in seg_reports:
@@ -174,12 +174,27 @@ def capture_report(cap: Capture) -> dict:
         "board_resets": len(parsed.segments) - 1 - (1 if parsed.segments[0].header_line is None
                                                     and parsed.header_lines else 0),
         "defects": defects,
+        "without_angle": without_angle(set().union(*(s.layout for s in parsed.segments))),
         "segments": seg_reports,
         "runs": [r.name for r in cap.runs],
     }
     for r in cap.runs:
         r.report = report | {"run": r.name}
     return report
+
+
+def without_angle(logged: set[str]) -> str | None:
+    """One sentence on what a capture without an encoder column loses, stage by stage (None with one)."""
+    if "counts" in logged:
+        return None
+    if "dir" in logged:
+        rest = ("derive keeps the current, phases and electrical energy from dir; validate replays the logged dir "
+                "and compares the current only (closed loop skipped: it switches on the angle)")
+    else:
+        rest = ("derive keeps the current and its energy; without dir either, there are no phases, no input energy "
+                "and nothing to drive the model with, so validate compares nothing")
+    return ("no angle (no encoder column, columns.counts = \"\"): velocity, guard overshoot, cycles, the "
+            f"mechanical energy terms and discovery are skipped; {rest}; the figures show what was logged")
 
 
 def ingest_capture(data: bytes, cfg: RigConfig, source: str, stem: str) -> tuple[list[RunData], dict]:
@@ -203,6 +218,8 @@ def summary_text(report: dict) -> str:
             lines.append(f"  segment {seg['index']}: zero_v auto = {z['zero_v']:.4f} V "
                          f"(spread {z['spread_v']:.4f} V, {z['samples']} samples, {z['method']})")
     lines += [f"  defect: {d}" for d in report["defects"]]
+    if report.get("without_angle"):
+        lines.append(f"  {report['without_angle']}")
     return "\n".join(lines)
 
 

@@ -18,7 +18,8 @@ from pipeline.io.atomic import atomic_path, remove_stale_temporaries, syncs_defe
 from pipeline.runs import RunPaths
 from pipeline.schemas import load_schema
 
-# MCAP channel per signal group; a group whose columns a sketch does not log is left out
+# MCAP channel per signal group; a group whose columns a sketch does not log is left out (/encoder: t_s is
+# always there, but without counts the channel has no encoder in it)
 CHANNEL_GROUPS = {
     "/encoder": ("t_s", "counts", "theta_rad"),
     "/current": ("adc", "current_v", "current_a"),
@@ -73,7 +74,7 @@ def mcap_channels(df: pd.DataFrame):
     out = []
     for topic, names in CHANNEL_GROUPS.items():
         present = [c for c in names if c in df.columns]
-        if not present or (topic != "/encoder" and len(present) < len(names)):
+        if len(present) < len(names) and (topic != "/encoder" or "counts" not in present):
             continue
         title = "pdr." + topic.strip("/")
         out.append(ChannelBatch(topic=topic, schema_name=title, json_schema=schema.json_schema(present, title=title),
