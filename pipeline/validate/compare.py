@@ -21,7 +21,7 @@ import numpy as np
 import pandas as pd
 
 from pipeline.columns import column
-from pipeline.derive.energy import run_energy
+from pipeline.derive.energy import run_electrical_energy, run_energy
 from pipeline.model.effects import PlantSpec
 from pipeline.model.simulate import SimResult
 from pipeline.validate.initial_state import Observed, Start, estimate_start
@@ -29,14 +29,31 @@ from pipeline.validate.metrics import signal_errors
 from pipeline.validate.noise import angle_noise, signal_noise
 
 WAYS = ("closed_loop", "replay")
+# Why a way is not run on a recording that lacks what it needs (a capture without an encoder column)
+WAY_NEEDS = {"closed_loop": ("theta_rad", "closed loop skipped: the simulator's guard switches on the angle, and "
+                                          "without an encoder there is no measured angle to hold it to"),
+             "replay": ("dir", "replay skipped: no logged dir, and without the angle the commands cannot be "
+                               "inferred from the guards, so nothing drives the model")}
+
+
+def possible_ways(kin: pd.DataFrame) -> tuple[str, ...]:
+    """The ways this recording can be compared: both with an encoder, replay alone with dir but no angle."""
+    return tuple(way for way in WAYS if WAY_NEEDS[way][0] in kin.columns)
+
+
+def skipped_ways(kin: pd.DataFrame) -> dict[str, str]:
+    """Each way this recording cannot be compared, with the sentence saying why."""
+    return {way: why for way, (needs, why) in WAY_NEEDS.items() if needs not in kin.columns}
 
 
 def observed_signals(kin: pd.DataFrame) -> Observed:
     """The logged signals the start is fitted to, each with its noise variance from the recording."""
     t = column(kin, "t_s", dtype=float)
-    theta = column(kin, "theta_rad", dtype=float)
-    omega = column(kin, "omega_rad_s", dtype=float, na_value=np.nan)
-    out = {"theta": (theta, angle_noise(theta, omega, t))}
+    out = {}
+    if "theta_rad" in kin.columns:
+        theta = column(kin, "theta_rad", dtype=float)
+        omega = column(kin, "omega_rad_s", dtype=float, na_value=np.nan)
+        out["theta"] = (theta, angle_noise(theta, omega, t))
     if "current_a" in kin.columns:
         current = column(kin, "current_a", dtype=float, na_value=np.nan)
         out["current"] = (current, signal_noise(current))
@@ -59,11 +76,15 @@ def logged_dir(kin: pd.DataFrame) -> np.ndarray:
 
 
 def simulate_both(spec: PlantSpec, kin: pd.DataFrame, start: Start | None = None) -> dict[str, SimResult]:
-    """Closed loop and replay at the recording's own sample instants, from its estimated start."""
+    """Closed loop and replay at the recording's own sample instants, from its estimated start
+    (only the ``possible_ways``: none without both the angle and dir)."""
+    ways = possible_ways(kin)
+    if not ways:
+        return {}
     t = column(kin, "t_s", dtype=float)
     d = logged_dir(kin)
     start = initial_state(kin, spec) if start is None else start
-    return {way: start.simulate(spec, t, d, closed_loop=way == "closed_loop") for way in WAYS}
+    return {way: start.simulate(spec, t, d, closed_loop=way == "closed_loop") for way in ways}
 
 
 def switch_indices(d: np.ndarray) -> np.ndarray:
@@ -124,19 +145,21 @@ def compare(kin: pd.DataFrame, spec: PlantSpec, sims: dict[str, SimResult] | Non
     """Everything ``validation.json`` holds about one run, for both ways."""
     sims = simulate_both(spec, kin) if sims is None else sims
     t = column(kin, "t_s", dtype=float)
-    theta = column(kin, "theta_rad", dtype=float)
-    d = logged_dir(kin)
+    theta = column(kin, "theta_rad", dtype=float) if "theta_rad" in kin.columns else None
+    d = logged_dir(kin) if "dir" in kin.columns else None
     guard = spec.guard_rad
-    meas_osc = oscillation_stats(t, theta, d, guard)
-    has_current = "current_a" in kin.columns
+    meas_osc = oscillation_stats(t, theta, d, guard) if theta is not None else None
     meas_energy = None
-    if has_current:
-        omega = np.nan_to_num(column(kin, "omega_rad_s", dtype=float, na_value=np.nan))
+    if "current_a" in kin.columns:
         # the derive stage's current (smoothed within phases when it made one): the same
         # inputs and code as summary.json's energy, so validation's "measured" is derive's figure
-        col = "current_smooth_a" if "current_smooth_a" in kin.columns else "current_a"
-        meas_energy = run_energy(t, column(kin, col, dtype=float), omega, theta, d, spec)
-    out: dict = {"measured": {"oscillation": meas_osc, "energy": meas_energy}}
+        current = column(kin, "current_smooth_a" if "current_smooth_a" in kin.columns else "current_a", dtype=float)
+        if theta is None:
+            meas_energy = run_electrical_energy(t, current, d, spec)
+        else:
+            omega = np.nan_to_num(column(kin, "omega_rad_s", dtype=float, na_value=np.nan))
+            meas_energy = run_energy(t, current, omega, theta, d, spec)
+    out: dict = {"measured": {"oscillation": meas_osc, "energy": meas_energy}, "skipped": skipped_ways(kin)}
     osc_keys = ("period_s", "amplitude_rad", "overshoot_rad")
     for way, sim in sims.items():
         osc = oscillation_stats(sim.t, sim.theta, sim.dir, guard)
@@ -145,7 +168,7 @@ def compare(kin: pd.DataFrame, spec: PlantSpec, sims: dict[str, SimResult] | Non
             "signals": signal_errors(kin, sim),
             "switches": switch_differences(t, d, sim.dir),
             "oscillation": osc,
-            "oscillation_error": _difference(osc, meas_osc, osc_keys),
+            "oscillation_error": _difference(osc, meas_osc, osc_keys) if meas_osc is not None else None,
             "energy": energy,
             "energy_error": None,
         }
@@ -154,34 +177,33 @@ def compare(kin: pd.DataFrame, spec: PlantSpec, sims: dict[str, SimResult] | Non
             block["energy_error"] = {
                 "paper_j": e_sim - e_meas,
                 "paper_pct": 100.0 * (e_sim - e_meas) / e_meas if e_meas else float("nan"),
-                "input_j": energy["input_energy_j"] - meas_energy["input_energy_j"],
+                "input_j": energy["input_energy_j"] - meas_energy.get("input_energy_j", np.nan),
             }
         out[way] = block
-    cl, rp = sims["closed_loop"], sims["replay"]
-    out["agreement"] = {"same_switches": bool(np.array_equal(cl.dir, rp.dir)),
-                        "max_abs_theta_diff_rad": float(np.max(np.abs(cl.theta - rp.theta)))}
+    out["agreement"] = None
+    if len(sims) == 2:
+        cl, rp = sims["closed_loop"], sims["replay"]
+        out["agreement"] = {"same_switches": bool(np.array_equal(cl.dir, rp.dir)),
+                            "max_abs_theta_diff_rad": float(np.max(np.abs(cl.theta - rp.theta)))}
     return out
 
 
 def comparison_table(kin: pd.DataFrame, sims: dict[str, SimResult]) -> pd.DataFrame:
     """Measured beside both simulations and the residuals (measured - model), one row per sample
-    (``schemas/comparison.json``)."""
-    cl, rp = sims["closed_loop"], sims["replay"]
-    cols = {
-        "t_s": column(kin, "t_s", dtype=float),
-        "theta_rad": column(kin, "theta_rad", dtype=float),
-        "theta_closed_loop_rad": cl.theta, "theta_replay_rad": rp.theta,
-        "omega_rad_s": column(kin, "omega_rad_s", dtype=float, na_value=np.nan),
-        "omega_closed_loop_rad_s": cl.omega, "omega_replay_rad_s": rp.omega,
-    }
-    if "current_a" in kin.columns:
-        cols["current_a"] = column(kin, "current_a", dtype=float)
-    cols.update({"current_closed_loop_a": cl.current_measured, "current_replay_a": rp.current_measured,
-                 "dir": logged_dir(kin), "dir_closed_loop": cl.dir.astype(np.int8),
-                 "dir_replay": rp.dir.astype(np.int8)})
-    for way in ("closed_loop", "replay"):
-        cols[f"theta_residual_{way}_rad"] = cols["theta_rad"] - cols[f"theta_{way}_rad"]
-        cols[f"omega_residual_{way}_rad_s"] = cols["omega_rad_s"] - cols[f"omega_{way}_rad_s"]
-        if "current_a" in cols:
-            cols[f"current_residual_{way}_a"] = cols["current_a"] - cols[f"current_{way}_a"]
+    (``schemas/comparison.json``); without an encoder the angle's columns and the closed loop's are
+    left out, and without dir either, only the measured current remains."""
+    cols = {"t_s": column(kin, "t_s", dtype=float)}
+    for name in ("theta_rad", "omega_rad_s", "current_a"):
+        if name in kin.columns:
+            cols[name] = column(kin, name, dtype=float, na_value=np.nan)
+    if "dir" in kin.columns:
+        cols["dir"] = logged_dir(kin)
+    for way, sim in sims.items():
+        cols |= {f"theta_{way}_rad": sim.theta, f"omega_{way}_rad_s": sim.omega,
+                 f"current_{way}_a": sim.current_measured, f"dir_{way}": sim.dir.astype(np.int8)}
+    for way in sims:
+        for signal, unit in (("theta", "rad"), ("omega", "rad_s"), ("current", "a")):
+            measured = "current_a" if signal == "current" else f"{signal}_{unit}"
+            if measured in cols:
+                cols[f"{signal}_residual_{way}_{unit}"] = cols[measured] - cols[f"{signal}_{way}_{unit}"]
     return pd.DataFrame(cols)

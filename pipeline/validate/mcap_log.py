@@ -33,7 +33,8 @@ from pipeline.ingest.write import TIME_NOTE
 from pipeline.io.atomic import atomic_path
 from pipeline.schemas import load_schema
 
-# topic -> (schema file, columns); a group whose columns the run lacks is left out
+# topic -> (schema file, columns); a group whose columns the run lacks is left out (a way not run, the
+# kinematics of a recording without an encoder)
 MEASURED = {
     "/measured/kinematics": ("t_s", "theta_rad", "omega_rad_s", "omega_backward_rad_s"),
     "/measured/current": ("current_a", "current_smooth_a"),
@@ -61,7 +62,7 @@ def comparison_channels(kin: pd.DataFrame, comparison: pd.DataFrame):
     out = []
     for topic, schema_name, table, cols in groups:
         present = [c for c in cols if c in table.columns]
-        if not present:
+        if not set(present) - {"t_s"}:         # nothing of the group logged (no encoder: no kinematics)
             continue
         title = "pdr" + topic.replace("/", ".")
         schema = load_schema(schema_name).json_schema(present, title=title)

@@ -132,11 +132,11 @@ class _Overview:
         self.phase_guards = [self.phase.axvline(0.0, color="tab:red", lw=0.9, ls="--") for _ in range(2)]
         self.legend = None
         self.phase_legend = None
-        self.legend_key: tuple[float, bool] | None = None
+        self.legend_key: tuple[float, tuple[str, ...], bool] | None = None
         self.title = _TitleStamp(self.fig, fontsize=13.0, top=0.985)
         self.backgrounds: dict[tuple, object] = {}
 
-    def _set_background(self, limits: tuple[float, ...], guard: float, same: bool) -> None:
+    def _set_background(self, limits: tuple[float, ...], guard: float, ways: tuple[str, ...], same: bool) -> None:
         """Point every artist of the background at this run's limits, guards and legend (cheap)."""
         t_lo, t_hi, th, om, cu = limits
         self.axes[0].set_xlim(t_lo, t_hi)
@@ -148,13 +148,14 @@ class _Overview:
             line.set_ydata([g, g])
         for line, g in zip(self.phase_guards, (guard, -guard)):
             line.set_xdata([g, g])
-        if self.legend_key != (guard, same):
-            self._set_legends(guard, same)
+        if self.legend_key != (guard, ways, same):
+            self._set_legends(guard, ways, same)
 
-    def _set_legends(self, guard: float, same: bool) -> None:
-        """Rebuilt only when the guard or the coincidence changes: a legend costs a few ms to lay out."""
-        self.legend_key = (guard, same)
-        ways = ("measured", "replay") if same else ("measured", "closed_loop", "replay")
+    def _set_legends(self, guard: float, ways: tuple[str, ...], same: bool) -> None:
+        """Rebuilt only when the guard, the ways drawn or their coincidence change: a legend costs a few
+        ms to lay out.  ``ways``: the simulations run (none, or replay alone, without an encoder)."""
+        self.legend_key = (guard, ways, same)
+        ways = ("measured", "replay") if same else ("measured", *(w for w in ("closed_loop", "replay") if w in ways))
         handles = [self.lines[0, w] for w in ways] + [self.guards[0]]
         labels = [("closed loop = replay" if same and w == "replay" else _LABELS[w]) for w in ways]
         labels.append(f"guard +/-{guard:.3g} rad")
@@ -167,9 +168,9 @@ class _Overview:
         self.phase_legend = self.phase.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, -0.12),
                                               ncols=1, fontsize=10, frameon=False)
 
-    def _background(self, limits: tuple[float, ...], guard: float, same: bool):
-        self._set_background(limits, guard, same)
-        key = (*limits, guard, same)
+    def _background(self, limits: tuple[float, ...], guard: float, ways: tuple[str, ...], same: bool):
+        self._set_background(limits, guard, ways, same)
+        key = (*limits, guard, ways, same)
         if key not in self.backgrounds:
             self.canvas.draw()
             if len(self.backgrounds) > 16:
@@ -181,14 +182,14 @@ class _Overview:
         t = column(kin, "t_s", dtype=float)
         measured = [column(kin, col, dtype=float, na_value=np.nan) if col in kin.columns
                     else np.full(len(t), np.nan) for col, _f, _l in _PANELS]
-        simulated = {way: [getattr(sims[way], f) for _c, f, _l in _PANELS] for way in ("closed_loop", "replay")}
-        same = coincide(sims["closed_loop"], sims["replay"])
+        run = tuple(way for way in ("closed_loop", "replay") if way in sims)     # fewer without an encoder
+        simulated = {way: [getattr(sims[way], f) for _c, f, _l in _PANELS] for way in run}
+        same = len(run) == 2 and coincide(sims["closed_loop"], sims["replay"])
         limits = (*time_limits(t),
-                  *(nice_limit(_MARGIN * _abs_max(measured[i], simulated["closed_loop"][i], simulated["replay"][i]))
-                    for i in range(3)))
-        self.canvas.restore_region(self._background(limits, guard, same))
+                  *(nice_limit(_MARGIN * _abs_max(measured[i], *(simulated[w][i] for w in run))) for i in range(3)))
+        self.canvas.restore_region(self._background(limits, guard, run, same))
         # Models first, the measurement on top; one model line when the two coincide.
-        ways = ("replay",) if same else ("replay", "closed_loop")
+        ways = ("replay",) if same else run[::-1]
         for i, ax in enumerate(self.axes):
             for way in ways:
                 self.lines[i, way].set_data(t, simulated[way][i])

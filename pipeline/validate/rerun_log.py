@@ -78,15 +78,15 @@ def coincidence(a: SimResult, b: SimResult) -> float | None:
 
 
 def ways_coincide(sims: dict[str, SimResult]) -> bool:
-    c = coincidence(sims["closed_loop"], sims["replay"])
+    c = coincidence(sims["closed_loop"], sims["replay"]) if len(sims) == 2 else None
     return c is not None and c <= COINCIDENCE_TOL
 
 
 def model_series(sims: dict[str, SimResult]) -> dict[str, tuple[SimResult, tuple]]:
-    """The model lines to draw: label -> (simulation, RGB colour)."""
+    """The model lines to draw: label -> (simulation, RGB colour); the ways run (fewer without an encoder)."""
     if ways_coincide(sims):
         return {"closed loop = replay": (sims["closed_loop"], RGB["closed_loop"])}
-    return {"closed loop": (sims["closed_loop"], RGB["closed_loop"]), "replay": (sims["replay"], RGB["replay"])}
+    return {way.replace("_", " "): (sims[way], RGB[way]) for way in ("closed_loop", "replay") if way in sims}
 
 
 def _measured(kin: pd.DataFrame, name: str) -> np.ndarray | None:
@@ -187,14 +187,17 @@ def event_rows(t: np.ndarray, theta: np.ndarray, d: np.ndarray, sims: dict[str, 
     sw = switch_indices(d)
     for k in sw:
         a, b = int(d[k - 1]), int(d[k])
+        if theta is None:           # no encoder: the switch, without where the pinion was
+            rows.append((t[k], f"switch {MODE_NAMES[a]} -> {MODE_NAMES[b]} (logged)", "INFO"))
+            continue
         inside = a * b == -1 and abs(theta[k]) < guard - GUARD_SLACK_RAD
         rows.append((t[k], f"switch {MODE_NAMES[a]} -> {MODE_NAMES[b]} (logged), theta = {theta[k]:+.3f} rad"
                      + (" inside the guards" if inside else ""), "WARN" if inside else "INFO"))
-    for k in guard_crossings(theta, guard):
+    for k in guard_crossings(theta, guard) if theta is not None else ():
         reversed_ = np.any((sw >= k - 1) & (sw <= k + 1)) or d[k] == 0
         rows.append((t[k], f"guard reached (measured): theta = {theta[k]:+.3f} rad"
                      + ("" if reversed_ else ", the logged command did not reverse"), "INFO" if reversed_ else "WARN"))
-    if not ways_coincide(sims):
+    if "closed_loop" in sims and not ways_coincide(sims):
         cl = sims["closed_loop"]
         for k in switch_indices(cl.dir):
             slip = float(np.min(np.abs(t[sw] - t[k]))) if len(sw) else np.inf
@@ -217,8 +220,9 @@ def _events(rec, rows: list[tuple[float, str, str]]) -> None:
 def theta_band(kin: pd.DataFrame, sims: dict[str, SimResult], guard: float, entries: int) -> tuple[float, float]:
     """The angle plot's y range: the data and the guards, rounded out to 0.1 rad, with the legend's
     band on top."""
-    values = [np.abs(s.theta) for s in sims.values()] + [np.abs(column(kin, "theta_rad", dtype=float))]
-    peak = max(guard, *(float(np.nanmax(v)) for v in values))
+    values = [np.abs(s.theta) for s in sims.values()] + [np.abs(column(kin, c, dtype=float))
+                                                          for c in ("theta_rad",) if c in kin.columns]
+    peak = max([guard, *(float(np.nanmax(v)) for v in values)])
     peak = float(np.ceil(peak * 10.0) / 10.0)
     lo, hi = legend_band(-peak, peak, entries)
     return round(lo, 3), round(hi, 3)
@@ -229,7 +233,8 @@ def residual_ranges(kin: pd.DataFrame, sims) -> tuple:
     out = []
     for name_in_kin, field, _unit in SIGNALS.values():
         meas = _measured(kin, name_in_kin)
-        peak = np.nan if meas is None else max(float(np.nanmax(np.abs(meas - getattr(s, field)))) for s in sims)
+        peak = max((float(np.nanmax(np.abs(meas - getattr(s, field)))) for s in sims if meas is not None),
+                   default=np.nan)
         out.append(tick_range(peak))
     return tuple(out)
 
@@ -241,34 +246,40 @@ def log_run(rec, name: str, kin: pd.DataFrame, sims: dict[str, SimResult], valid
 
     t = column(kin, "t_s", dtype=float)
     every = rr.TimeColumn(TIMELINE, duration=t)
-    d = logged_dir(kin)
+    d = logged_dir(kin) if "dir" in kin.columns else None
     models = model_series(sims)
     for sig, (name_in_kin, field, _unit) in SIGNALS.items():
         meas = _measured(kin, name_in_kin)
         lines = {label: (getattr(sim, field), color, 1.5) for label, (sim, color) in models.items()}
         if meas is not None:
             lines["measured"] = (meas, RGB["measured"], 1.5)
-        log_signal(rec, f"signals/{sig}", every, lines)
-        if meas is not None:
+        if lines:           # no encoder and no model: no angle plot at all
+            log_signal(rec, f"signals/{sig}", every, lines)
+        if meas is not None and models:
             residuals = {f"measured - {'model' if len(models) == 1 else label}": (meas - getattr(sim, field), color, 1.5)
                          for label, (sim, color) in models.items()}
             log_signal(rec, f"residuals/{sig}", every, residuals)
-    log_guards(rec, "signals/theta/guards", t, guard)
-    theta = _measured(kin, "theta_rad")
-    sw = switch_indices(d)
-    log_points(rec, "signals/theta/switches_logged", t[sw], theta[sw], "switch (logged)", MEASURED, "diamond")
+    theta = _measured(kin, "theta_rad")       # None without an encoder: what needs it is left out
+    if theta is not None or models:
+        log_guards(rec, "signals/theta/guards", t, guard)
+    if theta is not None:
+        sw = switch_indices(d)
+        log_points(rec, "signals/theta/switches_logged", t[sw], theta[sw], "switch (logged)", MEASURED, "diamond")
+        gc = guard_crossings(theta, guard)
+        log_points(rec, "signals/theta/guard_crossings", t[gc], theta[gc], "guard crossing", GUARD, "circle")
     if len(models) > 1:
         sw_cl = switch_indices(sims["closed_loop"].dir)
         log_points(rec, "signals/theta/switches_closed_loop", t[sw_cl], sims["closed_loop"].theta[sw_cl],
                    "switch (closed loop)", CLOSED, "cross")
-    gc = guard_crossings(theta, guard)
-    log_points(rec, "signals/theta/guard_crossings", t[gc], theta[gc], "guard crossing", GUARD, "circle")
-    log_mode_lane(rec, "mode/logged", t, d)
+    if d is not None:
+        log_mode_lane(rec, "mode/logged", t, d)
     if len(models) > 1:
         log_mode_lane(rec, "mode/closed_loop", t, sims["closed_loop"].dir)
-    _events(rec, event_rows(t, theta, d, sims, guard, period))
+    if d is not None:
+        _events(rec, event_rows(t, theta, d, sims, guard, period))
     log_phase_portrait(rec, "trajectory", portrait_strips(kin, models), guard)
-    rec.log("stats", rr.TextDocument(stats_markdown(name, validation, derived, coincidence(*sims.values())),
+    coincide = coincidence(*sims.values()) if len(sims) == 2 else None
+    rec.log("stats", rr.TextDocument(stats_markdown(name, validation, derived, coincide),
                                      media_type=rr.MediaType.MARKDOWN), static=True)
 
 
@@ -287,7 +298,7 @@ def portrait_strips(kin: pd.DataFrame, models: dict[str, tuple[SimResult, tuple]
     label, current = "measured (smoothed current)", _measured(kin, "current_smooth_a")
     if current is None:
         label, current = "measured", _measured(kin, "current_a")
-    if current is not None:
+    if current is not None and "theta_rad" in kin.columns:       # no encoder: no measured trajectory
         measured = np.column_stack([current, _measured(kin, "omega_rad_s"), _measured(kin, "theta_rad")])
         strips[label] = (measured, RGB["measured"], 1.5)
     return strips
@@ -305,8 +316,10 @@ def stats_markdown(name: str, validation: dict, derived: dict[str, dict[str, np.
                    coincide: float | None = None) -> str:
     """The statistics panel: metrics of both ways, oscillation/overshoot, energy, per-phase table.
     ``coincide``: ``coincidence`` of the two simulations, said first when they are drawn as one."""
-    ways = ("closed_loop", "replay")
+    ways = tuple(w for w in ("closed_loop", "replay") if validation.get(w))   # fewer without an encoder
     lines = [f"# {name}", ""]
+    for why in (validation.get("skipped") or {}).values():
+        lines += [why[0].upper() + why[1:] + ".", ""]
     if coincide is not None and coincide <= COINCIDENCE_TOL:
         apart = "are identical" if coincide == 0.0 else f"differ by at most {coincide:.1g} of a signal's peak"
         lines += [f"Closed loop = replay: the closed loop switches at the logged samples; the two simulations "
@@ -320,7 +333,7 @@ def stats_markdown(name: str, validation: dict, derived: dict[str, dict[str, np.
     lines += ["", "## Oscillation and overshoot (Sec. IV-B)", "",
               "| | half-cycles | period [s] | amplitude [rad] | overshoot [rad] |", "|---|---|---|---|---|"]
     rows = [("measured", validation["measured"]["oscillation"])] + [(w, validation[w]["oscillation"]) for w in ways]
-    for label, o in rows:
+    for label, o in ((label, o) for label, o in rows if o is not None):
         lines.append(f"| {label} | {o['n_half_cycles']} | {_fmt(o['period_s'])} | {_fmt(o['amplitude_rad'])} "
                      f"| {_fmt(o['overshoot_rad'])} |")
     lines += ["", "## Switches", "", "| way | logged | simulated | mean slip [s] | max slip [s] |",

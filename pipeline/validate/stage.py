@@ -81,7 +81,8 @@ def load_kinematics(paths: RunPaths) -> pd.DataFrame:
 
 def checked_kinematics(kin: pd.DataFrame, paths: RunPaths) -> pd.DataFrame:
     """The columns and rows validation needs, whether the table was read back or handed over by derive."""
-    missing = [c for c in ("t_s", "theta_rad", "omega_rad_s", "dir") if c not in kin.columns]
+    needed = ("t_s", "theta_rad", "omega_rad_s", "dir") if "theta_rad" in kin.columns else ("t_s", "current_a")
+    missing = [c for c in needed if c not in kin.columns]       # without an encoder: the current, and what exists
     if missing:
         raise PdrError(f"kinematics table lacks column '{missing[0]}'", path=paths.kinematics)
     if len(kin) < 2:
@@ -153,7 +154,7 @@ def validate_run(paths: RunPaths, model_override: ModelOverride = None, *, rrd: 
         "run": paths.name, "model": _model_json(spec, source),
         "n_samples": int(len(kin)), "duration_s": float(kin["t_s"].iloc[-1] - kin["t_s"].iloc[0]),
         "dir_inferred": bool(kin["dir_inferred"].any()) if "dir_inferred" in kin.columns else False,
-        "initial_state": initial_state(kin, spec).to_json(),
+        "initial_state": initial_state(kin, spec).to_json() if sims else None,
         **result,
     })
     t3 = time.perf_counter()
@@ -181,9 +182,11 @@ _MSE_UNITS = {"theta": "rad²", "omega": "(rad/s)²", "current": "A²"}
 
 def overview_title(run: str, validation: dict) -> str:
     """The overview's title: the run and its replay MSE per signal, with units."""
+    if not validation.get("replay"):
+        return f"{run}   not compared with the model (no angle, no dir): what was logged"
     parts = []
     for signal, unit in _MSE_UNITS.items():
-        e = validation["replay"]["signals"].get(signal)
+        e = (validation.get("replay") or {}).get("signals", {}).get(signal)
         parts.append(f"{signal} " + ("-" if e is None or e["mse"] is None else f"{e['mse']:.3g} {unit}"))
     return f"{run}   MSE replay: " + ", ".join(parts)
 
@@ -191,15 +194,18 @@ def overview_title(run: str, validation: dict) -> str:
 def summary_row(validation: dict) -> dict:
     """One flat row per run for ``processed/summary.csv`` and the console table."""
     row: dict = {"run": validation["run"], "n_samples": validation["n_samples"]}
+    measured_switches = None
     for way in ("replay", "closed_loop"):
+        block = validation.get(way) or {}         # a way skipped (no encoder) has no block
         for sig in ("theta", "omega", "current"):
-            e = validation[way]["signals"].get(sig)
+            e = block.get("signals", {}).get(sig)
             row[f"{way}_{sig}_mse"] = None if e is None else e["mse"]
             row[f"{way}_{sig}_fit_pct"] = None if e is None else e["fit_pct"]
-        sw = validation[way]["switches"]
-        row[f"{way}_switches"] = sw["n_simulated"]
-        row[f"{way}_max_slip_s"] = sw["max_abs_s"]
-        ee = validation[way]["energy_error"]
+        sw = block.get("switches") or {}
+        row[f"{way}_switches"] = sw.get("n_simulated")
+        row[f"{way}_max_slip_s"] = sw.get("max_abs_s")
+        measured_switches = sw.get("n_measured", measured_switches)
+        ee = block.get("energy_error")
         row[f"{way}_energy_error_pct"] = None if ee is None else ee["paper_pct"]
-    row["measured_switches"] = validation["closed_loop"]["switches"]["n_measured"]
+    row["measured_switches"] = measured_switches
     return row

@@ -39,6 +39,11 @@ def _g(v) -> str:
     return "-" if v is None or (isinstance(v, float) and v != v) else f"{v:.3g}"
 
 
+def _count(v) -> str:
+    """A switch count, "-" for a way not run (a recording without an encoder has no closed loop)."""
+    return "-" if v is None or (isinstance(v, float) and v != v) else str(int(v))
+
+
 def render_summary(table: pd.DataFrame, console=None, limit: int = 60) -> None:
     """Console table: MSEs of both ways, switch counts, energy error (first ``limit`` runs)."""
     from rich.table import Table
@@ -58,7 +63,7 @@ def render_summary(table: pd.DataFrame, console=None, limit: int = 60) -> None:
         cells = []
         for _head, key in cols:
             if key is None:
-                cells.append(f"{row['measured_switches']}/{row['closed_loop_switches']}")
+                cells.append("/".join(_count(row.get(k)) for k in ("measured_switches", "closed_loop_switches")))
             elif key == "run":
                 cells.append(str(row[key]))
             else:
