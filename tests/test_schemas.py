@@ -50,7 +50,9 @@ def test_json_schema_lists_only_present_columns_with_units():
 @pytest.mark.parametrize("mutate, message", [
     (lambda df: df.assign(dir=np.array([1, 1, 2, 1, 1], dtype="int8")), "column 'dir' has values outside .* rows 2"),
     (lambda df: df.assign(t_s=df.t_s - 1.0), "column 't_s' below 0.0 s at rows 0, 1, 2, 3, 4"),
-    (lambda df: df.drop(columns=["counts"]), "lacks required column 'counts'"),
+    (lambda df: df.drop(columns=["counts"]), "column 'theta_rad' without 'counts' .columns counts, theta_rad come"),
+    (lambda df: df.drop(columns=["counts", "theta_rad"]), "none of the columns theta_rad, current_a"),
+    (lambda df: df.drop(columns=["t_s"]), "lacks required column 't_s'"),
     (lambda df: df.assign(extra=1), "column 'extra' not defined"),
     (lambda df: df.assign(theta_rad=[0.0, np.nan, 0.1, 0.2, 0.3]), "column 'theta_rad' has nulls at rows 1"),
     (lambda df: df.assign(adc=[0, 10, 2000, 3, 4]), "column 'adc' above 1023"),
@@ -67,3 +69,16 @@ def test_an_infinite_value_in_an_integer_column_is_refused_as_non_integer():
     df["n_samples"] = np.array([10.0, np.inf, 3.0])
     with pytest.raises(SchemaError, match=r"'n_samples' has non-integer values at rows 1; rule: int64"):
         schema.check(df)
+
+
+def test_a_recording_without_an_encoder_keeps_to_the_schema_with_its_angle_columns_absent():
+    """counts and theta_rad are optional together, as long as the current is there (schemas/signals.json)."""
+    df = signals_frame().drop(columns=["counts", "theta_rad"])
+    df = df.assign(adc=np.full(5, 512, dtype="int32"), current_v=np.full(5, 2.5), current_a=np.zeros(5))
+    schema = load_schema("signals")
+    schema.check(df, "run1")
+    table = schema.to_arrow(df)
+    schema.check_arrow(table, "run1")
+    assert "counts" not in table.column_names and "theta_rad" not in table.column_names
+    with pytest.raises(SchemaError, match="column 'dir' without 'mode'"):
+        schema.check_arrow(schema.to_arrow(df).drop_columns(["mode"]), "run1")

@@ -25,3 +25,15 @@ def ingest(data: bytes, cfg: RigConfig | None = None, stem: str = "rec"):
 
 def quarantined_lines(report: dict) -> list[int]:
     return [q["line"] for q in report["quarantined"]]
+
+
+def without_columns(data: bytes, *names: bytes) -> bytes:
+    """A capture with the named columns taken out of its header and every row (a sketch that logs fewer)."""
+    header, *body = data.splitlines(keepends=True)
+    fields = header.rstrip(b"\r\n").split(b",")
+    keep = [j for j, f in enumerate(fields) if f not in names]
+    out = []
+    for line in (header, *body):
+        values = line.rstrip(b"\r\n").split(b",")
+        out.append(b",".join(values[j] for j in keep) + b"\n")
+    return b"".join(out)
