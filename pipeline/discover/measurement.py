@@ -186,8 +186,9 @@ def measurement_from_kinematics(kin: pd.DataFrame, config: RigConfig, name: str)
     """Arrays for fitting from a kinematics table; refuses tables discovery cannot use."""
     if "t_s" in kin.columns and "theta_rad" not in kin.columns:
         raise PdrError("discovery needs the angle: this recording has no encoder column (columns.counts = \"\"), "
-                       "and the catalogued effects are told apart by their fingerprints in the angle and velocity; "
-                       "validation compares its current with the model instead", path=name)
+                       "and the catalogued effects are told apart by their fingerprints in the angle and velocity"
+                       + ("; validation compares its current with the model instead" if "dir" in kin.columns else ""),
+                       path=name)
     for col in ("t_s", "theta_rad"):
         if col not in kin.columns:
             raise PdrError(f"kinematics table lacks column '{col}', which discovery needs", path=name)

@@ -37,9 +37,11 @@ def validate(
         for paths in resolve_runs(rec, processed):
             row = validate_run(paths, model, rrd=not no_rrd, png=not no_png)
             done.append(paths.name)
-            typer.echo(f"{row['run']}: replay MSE theta {row['replay_theta_mse']:.4g} rad^2, "
-                       f"omega {row['replay_omega_mse']:.4g} (rad/s)^2"
-                       + (f", current {row['replay_current_mse']:.4g} A^2" if row['replay_current_mse'] is not None else ""))
+            units = {"theta": "rad^2", "omega": "(rad/s)^2", "current": "A^2"}
+            mses = [f"{sig} {row[f'replay_{sig}_mse']:.4g} {unit}" for sig, unit in units.items()
+                    if row[f"replay_{sig}_mse"] is not None]      # fewer without an encoder
+            typer.echo(f"{row['run']}: replay MSE " + ", ".join(mses) if mses else
+                       f"{row['run']}: not compared with the model (no angle and no dir logged)")
 
     with processed_lock(processed):
         failures = for_each(recordings, one, processed)
@@ -91,6 +93,8 @@ def gate(
                 "[red]FAIL[/]" if not c.passed else "not gated")
             table.add_row(c.run, c.way, c.signal, f"{c.mse:.4g}" if c.mse is not None else "-",
                           "-" if c.threshold is None else f"{c.threshold:.4g}", margin, status)
+        for way in v.skipped:
+            table.add_row(v.run, way, "-", "-", "-", "-", "skipped: no encoder (validation.json says why)")
     console.print(table)
     failed = [v for v in verdicts if not v.passed]
     if failed:

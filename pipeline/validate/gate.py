@@ -144,6 +144,7 @@ class RunVerdict:
     run: str
     checks: tuple[Check, ...]
     problem: str | None = None      # set when the run could not be checked at all
+    skipped: tuple[str, ...] = ()   # ways not run on this recording (no encoder: validation.json says why)
 
     @property
     def passed(self) -> bool:
@@ -171,7 +172,8 @@ def check_run(validation: dict, thresholds: Thresholds) -> RunVerdict:
                 # Not logged (e.g. no current sensor): nothing to gate.
                 continue
             checks.append(Check(run, way, sig, e.get("mse"), limit))
-    return RunVerdict(run, tuple(checks))
+    skipped = tuple(way for way in WAYS if way in (validation.get("skipped") or {}))
+    return RunVerdict(run, tuple(checks), skipped=skipped)
 
 
 def run_dirs(processed: Path) -> list[Path]:
