@@ -81,7 +81,7 @@ def ingest_recording_bytes(data: bytes, toml: str | None = None, tmp=None):
     ("[controller]\nperiod_s = 1e300\n", "controller.period_s", "expected a value in [1e-06, 60.0]"),
     ("[model]\nRa = 2.59e20\n", "model.Ra", "expected a value in"),
     ('[columns]\ncounts = "t_ms"\n', "columns.counts", "already the column of columns.t_ms"),
-    ('[columns]\ncounts = ""\n', "columns.counts", "a capture without it (e.g. a current-only motor step"),
+    ('[columns]\ncounts = ""\nadc = ""\n', "columns.counts", "with neither, the capture has nothing pdr can process"),
 ])
 def test_rig_file_mistakes_are_named(tmp_path, toml, key, says):
     with pytest.raises(ConfigError) as err:
@@ -90,6 +90,47 @@ def test_rig_file_mistakes_are_named(tmp_path, toml, key, says):
     assert "\n" not in message and "rec.toml" in message and says in message
     if key:
         assert f"key '{key}'" in message
+
+
+def test_a_capture_without_an_encoder_column_is_processed_beside_good_ones(workspace):
+    """Regression: `counts = ""` (a current-only capture) was refused, or a KeyError in segments.py before
+    that.  Now each stage does what the current (and a logged dir) allow, and says what it skipped."""
+    import numpy as np
+    import pyarrow.parquet as pq
+    from rerun.chunk import RrdReader
+
+    from tests.ingest.helpers import without_columns
+    from tests.ingest.test_outputs import _read_mcap
+    raw = workspace.fresh_raw()
+    (raw / "good0.csv").write_bytes(good_csv(0))
+    (raw / "amps.csv").write_bytes(without_columns(good_csv(1), b"counts"))
+    (raw / "amps.toml").write_text('[columns]\ncounts = ""\n')
+    (raw / "step.csv").write_bytes(without_columns(good_csv(1), b"counts", b"dir"))
+    (raw / "step.toml").write_text('[columns]\ncounts = ""\ndir = ""\n')
+    (raw / "nocounts.csv").write_bytes(without_columns(good_csv(1), b"counts"))       # no TOML saying so
+    before = snapshot(raw)
+    processed = workspace.processed()
+    report = run_pipeline(raw, processed, jobs=1, code=CODE)
+    status = {r["recording"]: r["status"] for r in report.ran}
+    assert status == {"good0.csv": "ok", "amps.csv": "ok", "step.csv": "ok", "nocounts.csv": "failed"}, report.ran
+    error = report.failed[0]["error"]
+    assert "\n" not in error and "(columns.counts)" in error and 'counts = "" when the capture has no encoder' in error
+    no_traceback(error)
+    assert snapshot(raw) == before
+    for run in ("amps", "step"):
+        signals = pq.read_table(processed / run / "signals.parquet")
+        assert "theta_rad" not in signals.column_names and "current_a" in signals.column_names
+        messages, _, _, _, _ = _read_mcap(processed / run / f"{run}.mcap")
+        assert "/encoder" not in messages and len(messages["/current"]) == len(signals)
+        assert "no angle" in json.loads((processed / run / "ingest_report.json").read_text())["without_angle"]
+        chunks = RrdReader(processed / run / f"{run}.rrd").stream().to_chunks()
+        current = [ch for ch in chunks if ch.entity_path == "/signals/current" and not ch.is_static]
+        logged = np.array([v for ch in current for v in ch.to_record_batch().column("Scalars:scalars").to_pylist()])
+        np.testing.assert_allclose(logged[:, -1], signals.column("current_a").to_numpy())   # measured: drawn last
+    validation = json.loads((processed / "amps" / "validation.json").read_text())
+    assert list(validation["replay"]["signals"]) == ["current"] and list(validation["skipped"]) == ["closed_loop"]
+    assert (processed / "summary.csv").read_text().count("\namps,") == 1
+    workspace.assert_as_alone(processed, 0)             # last: it empties the raw folder
 
 
 def test_ingest_of_several_recordings_does_every_good_one_and_exits_nonzero(tmp_path):
