@@ -11,7 +11,7 @@ refreshed at the end of ``pdr run`` only to add new runs and drop removed ones.
 ``dataset/runs/run=<run>/part-0.parquet`` is the one real file: a row per
 run (recording, raw file sha256, ``recorded`` = the raw file's modification
 time, UTC), for questions by date.  A run's tables may differ in optional
-columns (a recording without ``dir`` or current): read with
+columns (a recording without ``dir``, current or encoder): read with
 ``union_by_name`` (DuckDB) or a unified schema.
 """
 
