@@ -200,7 +200,8 @@ class LineDecoder:
         self._count_switches(d, segment)
         self.tally.samples += len(t_s)
         current = self._current(values, segment, logged) if "adc" in logged else np.full(len(t_s), np.nan)
-        return Samples(t_s=t_s, theta_rad=values["counts"] * rad_per_count(self.cfg), current_a=current,
+        theta = values["counts"] * rad_per_count(self.cfg) if "counts" in logged else np.full(len(t_s), np.nan)
+        return Samples(t_s=t_s, theta_rad=theta, current_a=current,
                        dir=d, segment=segment, has_dir="dir" in logged)
 
     def _count_switches(self, d: np.ndarray, segment: np.ndarray) -> None:
