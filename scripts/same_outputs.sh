@@ -1,0 +1,50 @@
+#!/usr/bin/env bash
+# Do this checkout's `pdr run` and `pdr discover` give the same bytes as another commit's on the shipped raw/?
+#
+#   scripts/same_outputs.sh [REF]        (REF: a commit or branch, default main)
+#
+# For refactors that must not change behaviour.  REF's tree is exported (git archive) to a temporary
+# folder and run with this checkout's .venv (PYTHONPATH puts REF's package first; its numba kernels
+# compile on the first run, a minute or two).  Both sides read this checkout's raw/ and write to their
+# own processed/; every file is then compared byte for byte, except the .rrd files (Rerun stores its
+# own ids and times), stamp.json's code_version (a digest of the code itself) and the wall time
+# `pdr discover --json` reports.
+# Exit status 0 when everything matches, 1 otherwise.  Nothing in this checkout is written.
+set -euo pipefail
+
+ref=${1:-main}
+here=$(git rev-parse --show-toplevel)
+py="$here/.venv/bin/python"
+work=$(mktemp -d "${TMPDIR:-/tmp}/same-outputs.XXXXXX")
+[ -n "${KEEP:-}" ] || trap 'rm -rf "$work"' EXIT    # KEEP=1: leave the outputs for a look
+mkdir -p "$work/ref"
+git -C "$here" archive "$ref" pipeline schemas | tar -x -C "$work/ref"
+
+pdr() {   # pdr SRC_TREE ARGS...: the command line of the package found in SRC_TREE
+    local src=$1
+    shift
+    PYTHONPATH="$src" PYTHONDONTWRITEBYTECODE=1 "$py" -c 'import sys; from pipeline.cli import main; sys.argv[0] = "pdr"; main()' "$@"
+}
+
+for side in ref new; do
+    src=$([ "$side" = ref ] && echo "$work/ref" || echo "$here")
+    out="$work/out-$side"
+    echo "same_outputs: $side ($([ "$side" = ref ] && echo "$ref" || echo "this checkout")) ..." >&2
+    (cd "$here" && pdr "$src" run --raw raw --processed "$out" --force -j 2 >/dev/null 2>&1)
+    mkdir -p "$out/discovery"
+    for csv in "$here"/raw/*.csv; do
+        (cd "$here" && pdr "$src" discover "$csv" --processed "$out" --out "$out/discovery/$(basename "$csv" .csv)" \
+            --json > "$out/discovery/$(basename "$csv" .csv).stdout.json") || true
+    done
+    find "$out" -name stamp.json -exec sed -i '/"code_version"/d' {} +
+    sed -i '/^  "seconds": /d' "$out"/discovery/*.stdout.json              # the wall time discovery took
+    find "$out" -name '*.rrd' -delete
+    rm -f "$out/.pdr.lock"
+done
+
+if diff -r "$work/out-ref" "$work/out-new" >/dev/null; then
+    echo "same_outputs: identical ($(find "$work/out-new" -type f | wc -l) files; .rrd and code_version left out)"
+else
+    diff -rq "$work/out-ref" "$work/out-new" | sed "s|$work/||g"
+    exit 1
+fi
