@@ -214,13 +214,11 @@ STEPPERS[Zoh] = zoh_step
 
 
 @njit(cache=True)
-def run_zoh(t, A, B, R, guard, V, v_bias, Td, x0, log, closed_loop, start, first, dir0,
-            current, omega, delta, dirs) -> None:
-    """The automaton on the linear plant (sampled guard): one exponential per distinct step length."""
+def run_zoh(A, B, c, t, x0, out, dirs) -> None:
+    """The automaton on the linear plant (``loop.run``): one exponential per distinct step length."""
     lengths, idx = step_lengths(t)
     P = np.empty((len(lengths), 12))
     for j in range(len(lengths)):
         phi_gamma_into(A, B, lengths[j], P[j])
     zp = Zoh(P, idx, A, B, np.empty(MAX_SPLIT_LENGTHS), np.empty((MAX_SPLIT_LENGTHS, 3)), np.zeros(1, dtype=np.int64))
-    run(zp, t, R, guard, V, v_bias, Td, x0, log, closed_loop, start, first, dir0, False,
-        current, omega, delta, dirs)
+    run(zp, c, t, x0, out, dirs)

@@ -29,13 +29,6 @@ class ModelParams:
     K2: float = 0.8682      # N/m      spring 2 stiffness
     b: float = 7.7e-4       # N m s/rad viscous friction identified in Sec. IV-A (eq. 8); 0 gives eq. (6)
 
-    UNITS = {
-        "R": "m", "J": "N m s^2", "Ke": "V s/rad", "Kt": "N m/A", "La": "H",
-        "Ra": "Ohm", "K1": "N/m", "K2": "N/m", "b": "N m s/rad",
-    }
-    # b may be zero (the paper's eq. 6); everything else must be strictly positive.
-    NON_NEGATIVE = frozenset({"b"})
-
     @classmethod
     def names(cls) -> tuple[str, ...]:
         return tuple(f.name for f in fields(cls))
@@ -54,25 +47,11 @@ class ModelParams:
 
     def state_matrices(self) -> tuple[np.ndarray, np.ndarray]:
         """A, B of eq. (8) for x = [I, w, delta] (eq. (6) when b = 0)."""
-        return state_matrices_of(self.R, self.J, self.Ke, self.Kt, self.La, self.Ra, self.K1, self.K2, self.b)
-
-
-# The parameters A and B are made of, and the one place their formula is written.
-MATRIX_PARAMS = ("R", "J", "Ke", "Kt", "La", "Ra", "K1", "K2", "b")
-
-
-def state_matrices_of(R, J, Ke, Kt, La, Ra, K1, K2, b) -> tuple[np.ndarray, np.ndarray]:
-    """A, B of eq. (8) from scalars (3 x 3, 3) or from equal-length parameter columns (m x 3 x 3, m x 3)."""
-    a00, a01 = -Ra / La, -Ke / La                                 # (2)
-    a10, a11, a12 = Kt / J, -b / J, -R * (K1 + K2) / J            # (4), (8)
-    a21, b0 = R, 1.0 / La                                         # (5), (2)
-    if not isinstance(La, np.ndarray):                            # one set: what every single simulate builds
+        R, J, La = self.R, self.J, self.La
+        a00, a01 = -self.Ra / La, -self.Ke / La                               # (2)
+        a10, a11, a12 = self.Kt / J, -self.b / J, -R * (self.K1 + self.K2) / J   # (4), (8)
+        a21, b0 = R, 1.0 / La                                                 # (5), (2)
         return np.array([[a00, a01, 0.0], [a10, a11, a12], [0.0, a21, 0.0]]), np.array([b0, 0.0, 0.0])
-    A = np.zeros((len(La), 3, 3))
-    A[:, 0, 0], A[:, 0, 1], A[:, 1, 0], A[:, 1, 1], A[:, 1, 2], A[:, 2, 1] = a00, a01, a10, a11, a12, a21
-    B = np.zeros((len(La), 3))
-    B[:, 0] = b0
-    return A, B
 
 
 @dataclass(frozen=True)
