@@ -93,13 +93,9 @@ def plant_constants(spec: PlantSpec) -> tuple[np.ndarray, ModalData]:
 
 @njit(cache=True)
 def new_plant(p: np.ndarray, md: ModalData) -> Plant:
+    """A fresh plant from ``plant_constants`` (regime z = s = +1 until ``reset``)."""
     return Plant(p, md, np.array([1, 1], dtype=np.int64), np.empty((2, STEP_CAPACITY)),
                  np.empty((2, STEP_CAPACITY, 18)), np.empty((2, REQUEST_CAPACITY)), np.zeros(4, dtype=np.int64))
-
-
-def make_plant(spec: PlantSpec) -> Plant:
-    """A fresh plant for ``spec`` (regime z = s = +1 until ``reset``)."""
-    return new_plant(*plant_constants(spec))
 
 
 # -- regime bookkeeping -----------------------------------------------------
