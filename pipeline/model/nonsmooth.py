@@ -41,7 +41,7 @@ from numba import njit
 from pipeline.model.linear import step_key
 from pipeline.model.modal import (ModalData, coefficients, event_function, first_root, gd, modal_data, state,
                                   step_matrices, zero_of_derivative)
-from pipeline.model.spec import PlantSpec
+from pipeline.model.params import PlantSpec
 
 MAX_ZERO_LENGTH_EVENTS = 50
 # Step lengths kept per regime, and one-off lengths remembered (to spot the second use of one).

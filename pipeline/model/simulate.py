@@ -34,7 +34,7 @@ from pipeline.model import loop
 from pipeline.model.linear import run_zoh
 from pipeline.model.event_step import run_events
 from pipeline.model.nonsmooth import plant_constants
-from pipeline.model.spec import PlantSpec
+from pipeline.model.params import PlantSpec
 
 GUARDS = ("sampled", "continuous")
 # The sketch's rule (``loop.next_dir``) as plain Python, for callers that apply it sample by sample

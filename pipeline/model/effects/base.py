@@ -22,7 +22,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from pipeline.model.spec import PlantSpec
+from pipeline.model.params import PlantSpec
 
 # Where an effect's residual fingerprint lives (``pipeline.discover.selection.signature_energy``).
 SIGNATURES = ("everywhere", "after_switch", "low_speed", "after_zero_crossing", "current_bias")

@@ -10,7 +10,7 @@ from typing import ClassVar
 import numpy as np
 
 from pipeline.model.effects.base import Effect, Param
-from pipeline.model.spec import PlantSpec
+from pipeline.model.params import PlantSpec
 
 _MAGNITUDES = tuple(float(v) for v in np.geomspace(1e-5, 5e-3, 12))
 

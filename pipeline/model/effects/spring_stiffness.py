@@ -8,7 +8,7 @@ from typing import ClassVar
 import numpy as np
 
 from pipeline.model.effects.base import Effect, Param
-from pipeline.model.spec import PlantSpec
+from pipeline.model.params import PlantSpec
 
 
 @dataclass(frozen=True)
