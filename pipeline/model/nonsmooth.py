@@ -106,9 +106,11 @@ def spring_torque(pl: Plant, delta: float) -> float:
 
 
 @njit(cache=True)
-def net_torque(pl: Plant, I: float, delta: float) -> float:
-    """Torque that Coulomb friction has to hold at w = 0: Kt I - spring."""
-    return pl.p[KT] * I - spring_torque(pl, delta)
+def slip_at_rest(pl: Plant, I: float, delta: float) -> int:
+    """The slip direction at w = 0: stick (0) while Coulomb friction holds the net torque Kt I - spring,
+    else the way that torque turns the pinion."""
+    net = pl.p[KT] * I - spring_torque(pl, delta)
+    return 0 if abs(net) <= pl.p[TC] else (1 if net > 0 else -1)
 
 
 @njit(cache=True)
@@ -125,8 +127,7 @@ def reset(pl: Plant, x: tuple[float, float, float]) -> None:
     elif x[1] < 0.0:
         pl.zs[1] = -1
     else:
-        net = net_torque(pl, x[0], x[2])
-        pl.zs[1] = 0 if abs(net) <= p[TC] else (1 if net > 0 else -1)
+        pl.zs[1] = slip_at_rest(pl, x[0], x[2])
 
 
 @njit(cache=True)
@@ -226,8 +227,7 @@ def _transition(pl: Plant, x, kind: int, arg: int):
         pl.zs[0] = arg
     elif kind == VEL:
         w = 0.0
-        net = net_torque(pl, I, dl)
-        pl.zs[1] = 0 if abs(net) <= pl.p[TC] else (1 if net > 0 else -1)
+        pl.zs[1] = slip_at_rest(pl, I, dl)
     elif kind == STICK:
         w = 0.0
         pl.zs[1] = arg
