@@ -55,7 +55,7 @@ class Controller(NamedTuple):
     closed_loop: bool       # False: replay, the log drives the motor
     start: int              # first sample the sampled guard decides (closed loop; earlier ones follow the log)
     first: int              # the mode there (0: decide by ``next_dir`` from ``dir0``)
-    dir0: int
+    dir0: int               # the mode the sampled guard starts from when there is no logged one
     continuous: bool        # reverse the instant theta reaches the guard instead of at the next sample
 
 
@@ -85,7 +85,7 @@ def enqueue(arrive: np.ndarray, volts: np.ndarray, head: int, tail: int, at: flo
     return arrive, volts, head, tail + 1
 
 
-# plant NamedTuple class -> its compiled stepper (filled by linear.py and nonsmooth.py)
+# plant NamedTuple class -> its compiled stepper (filled by linear.py and event_step.py)
 STEPPERS: dict[type, object] = {}
 
 
