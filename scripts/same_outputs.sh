@@ -7,8 +7,8 @@
 # folder and run with this checkout's .venv (PYTHONPATH puts REF's package first; its numba kernels
 # compile on the first run, a minute or two).  Both sides read this checkout's raw/ and write to their
 # own processed/; every file is then compared byte for byte, except the .rrd files (Rerun stores its
-# own ids and times), stamp.json's code_version (a digest of the code itself) and the wall time
-# `pdr discover --json` reports.
+# own ids and times: compared with `rerun rrd compare` instead), stamp.json's code_version (a digest
+# of the code itself) and the wall time `pdr discover --json` reports.
 # Exit status 0 when everything matches, 1 otherwise.  Nothing in this checkout is written.
 set -euo pipefail
 
@@ -38,12 +38,21 @@ for side in ref new; do
     done
     find "$out" -name stamp.json -exec sed -i '/"code_version"/d' {} +
     sed -i '/^  "seconds": /d' "$out"/discovery/*.stdout.json              # the wall time discovery took
-    find "$out" -name '*.rrd' -delete
     rm -f "$out/.pdr.lock"
 done
 
-if diff -r "$work/out-ref" "$work/out-new" >/dev/null; then
-    echo "same_outputs: identical ($(find "$work/out-new" -type f | wc -l) files; .rrd and code_version left out)"
+rrd_differ=0      # Rerun recordings hold their own ids and times: compared by `rerun rrd compare`, then set aside
+for a in $(cd "$work/out-ref" && find . -name '*.rrd' | sort); do
+    if ! "$here/.venv/bin/rerun" rrd compare "$work/out-ref/$a" "$work/out-new/$a" >/dev/null 2>&1; then
+        echo "rrd differs: $a"
+        rrd_differ=1
+    fi
+    rm -f "$work/out-ref/$a" "$work/out-new/$a"
+done
+
+if diff -r "$work/out-ref" "$work/out-new" >/dev/null && [ "$rrd_differ" = 0 ]; then
+    echo "same_outputs: identical ($(find "$work/out-new" -type f | wc -l) files byte for byte, code_version left out;" \
+         "every .rrd by rerun rrd compare)"
 else
     diff -rq "$work/out-ref" "$work/out-new" | sed "s|$work/||g"
     exit 1
