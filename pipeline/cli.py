@@ -22,10 +22,10 @@ app = typer.Typer(
 
 def _register() -> None:
     from pipeline import run as run_stage
+    from pipeline import simulate_cli
     from pipeline.derive import cli as derive_cli
     from pipeline.discover import cli as discover_cli
     from pipeline.ingest import cli as ingest_cli
-    from pipeline.model import cli as model_cli
     from pipeline.record import cli as record_cli
     from pipeline.rig import cli as rig_cli
     from pipeline.validate import cli as validate_cli
@@ -34,7 +34,7 @@ def _register() -> None:
     app.command("ingest")(ingest_cli.ingest)
     app.command("derive")(derive_cli.derive)
     app.command("validate")(validate_cli.validate)
-    app.command("simulate")(model_cli.simulate)
+    app.command("simulate")(simulate_cli.simulate)
     app.command("discover")(discover_cli.discover)
     app.command("gate")(validate_cli.gate)
     app.command("view")(validate_cli.view)

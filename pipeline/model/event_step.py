@@ -120,10 +120,8 @@ STEPPERS[Plant] = event_step
 
 
 @njit(cache=True)
-def run_events(t, p, md, R, guard, V, v_bias, Td, x0, log, closed_loop, start, first, dir0, continuous,
-               current, omega, delta, dirs) -> None:
-    """The automaton on the event-driven plant (stick/slip, backlash edges, the continuous guard)."""
+def run_events(p, md, c, t, x0, out, dirs) -> None:
+    """The automaton on the event-driven plant (``loop.run``): stick/slip, backlash edges, the continuous guard."""
     pl = new_plant(p, md)
     reset(pl, (x0[0], x0[1], x0[2]))
-    run(pl, t, R, guard, V, v_bias, Td, x0, log, closed_loop, start, first, dir0, continuous,
-        current, omega, delta, dirs)
+    run(pl, c, t, x0, out, dirs)

@@ -102,22 +102,14 @@ def phi_gamma_into(A: np.ndarray, B: np.ndarray, h: float, out: np.ndarray) -> N
 
 
 @njit(cache=True)
-def phi_gamma(A: np.ndarray, B: np.ndarray, h: float) -> np.ndarray:
-    """(P00, P01, P02, P10, ..., P22, G0, G1, G2) for length ``h`` as a new array."""
-    out = np.empty(12)
-    phi_gamma_into(A, B, h, out)
-    return out
-
-
-@njit(cache=True)
 def step_lengths(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The distinct rounded step lengths of instants ``t`` and, per step, the index of its length.
 
-    Shared by every parameter set of a batch: the exponentials are then one per
-    (set, distinct length), ~2 per set for a millis() recording.  Found by a
-    search through the few lengths met so far (a sort would cost seconds of JIT
-    compile); instants with more than MAX_DISTINCT_LENGTHS different spacings
-    get one exponential per step instead, which stays linear in the samples.
+    The exponentials are then one per distinct length, ~2 for a millis()
+    recording.  Found by a search through the few lengths met so far (a sort
+    would cost seconds of JIT compile); instants with more than
+    MAX_DISTINCT_LENGTHS different spacings get one exponential per step
+    instead, which stays linear in the samples.
     """
     n = max(len(t) - 1, 0)
     lengths = np.empty(n)
@@ -171,7 +163,8 @@ def _split_gamma(zp: Zoh, key: float) -> int:
     if c == n:
         if n == MAX_SPLIT_LENGTHS:
             c = n = 0
-        G = phi_gamma(zp.A, zp.B, key)
+        G = np.empty(12)
+        phi_gamma_into(zp.A, zp.B, key, G)
         zp.split_keys[c] = key
         zp.split_gamma[c, 0], zp.split_gamma[c, 1], zp.split_gamma[c, 2] = G[9], G[10], G[11]
         zp.n_split[0] = n + 1
@@ -214,13 +207,11 @@ STEPPERS[Zoh] = zoh_step
 
 
 @njit(cache=True)
-def run_zoh(t, A, B, R, guard, V, v_bias, Td, x0, log, closed_loop, start, first, dir0,
-            current, omega, delta, dirs) -> None:
-    """The automaton on the linear plant (sampled guard): one exponential per distinct step length."""
+def run_zoh(A, B, c, t, x0, out, dirs) -> None:
+    """The automaton on the linear plant (``loop.run``): one exponential per distinct step length."""
     lengths, idx = step_lengths(t)
     P = np.empty((len(lengths), 12))
     for j in range(len(lengths)):
         phi_gamma_into(A, B, lengths[j], P[j])
     zp = Zoh(P, idx, A, B, np.empty(MAX_SPLIT_LENGTHS), np.empty((MAX_SPLIT_LENGTHS, 3)), np.zeros(1, dtype=np.int64))
-    run(zp, t, R, guard, V, v_bias, Td, x0, log, closed_loop, start, first, dir0, False,
-        current, omega, delta, dirs)
+    run(zp, c, t, x0, out, dirs)

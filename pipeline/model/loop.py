@@ -21,6 +21,8 @@ there is one loop, compiled (and cached) once per plant.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from numba import njit
 from numba.extending import overload
@@ -41,22 +43,33 @@ def next_dir(current_dir: int, theta: float, guard: float) -> int:
     return current_dir if current_dir != 0 else 1
 
 
-@njit(cache=True)
-def decide(k: int, d_prev: int, theta: float, guard: float, log: np.ndarray, closed_loop: bool,
-           start: int, first: int, dir0: int) -> int:
-    """The command at sample k: the log (replay, or before the sketch starts), then the sampled guard;
-    an ``UNKNOWN`` entry of the log is decided by the sketch's rule too (a lost row: the loop ran there).
+class Controller(NamedTuple):
+    """The sketch and its wiring as the loop runs them (built by ``simulate``)."""
 
-    ``start`` is the first sample the controller decides and ``first`` its mode
-    there (0: decide by ``next_dir`` from ``dir0``); see ``simulate._plan``.
-    """
-    if not closed_loop or k < start:
-        if log[k] == UNKNOWN:
-            return d_prev if d_prev == 0 else next_dir(d_prev, theta, guard)
-        return int(log[k])
-    if k == start:
-        return first if first != 0 else next_dir(dir0, theta, guard)
-    return next_dir(d_prev, theta, guard)
+    R: float                # m    pinion radius: theta = delta / R (eq. 7)
+    guard: float            # rad  the guard the sketch reverses at
+    V: float                # V    |u| of a command
+    v_bias: float           # V    added to every command's voltage, the motor's only one before the first
+    Td: float               # s    loop delay from deciding sample to motor
+    log: np.ndarray         # int8 logged commands (-1/0/1, UNKNOWN), one per sample; empty without a log
+    closed_loop: bool       # False: replay, the log drives the motor
+    start: int              # first sample the sampled guard decides (closed loop; earlier ones follow the log)
+    first: int              # the mode there (0: decide by ``next_dir`` from ``dir0``)
+    dir0: int               # the mode the sampled guard starts from when there is no logged one
+    continuous: bool        # reverse the instant theta reaches the guard instead of at the next sample
+
+
+@njit(cache=True)
+def decide(c: Controller, k: int, d_prev: int, theta: float) -> int:
+    """The command at sample k: the log (replay, or before the sketch starts), then the sampled guard;
+    an ``UNKNOWN`` entry of the log is decided by the sketch's rule too (a lost row: the loop ran there)."""
+    if not c.closed_loop or k < c.start:
+        if c.log[k] == UNKNOWN:
+            return d_prev if d_prev == 0 else next_dir(d_prev, theta, c.guard)
+        return int(c.log[k])
+    if k == c.start:
+        return c.first if c.first != 0 else next_dir(c.dir0, theta, c.guard)
+    return next_dir(d_prev, theta, c.guard)
 
 
 @njit(cache=True)
@@ -72,7 +85,7 @@ def enqueue(arrive: np.ndarray, volts: np.ndarray, head: int, tail: int, at: flo
     return arrive, volts, head, tail + 1
 
 
-# plant NamedTuple class -> its compiled stepper (filled by linear.py and nonsmooth.py)
+# plant NamedTuple class -> its compiled stepper (filled by linear.py and event_step.py)
 STEPPERS: dict[type, object] = {}
 
 
@@ -93,39 +106,35 @@ def _stepper_of(plant, x, k, tk, t_next, u_m, arrive, volts, head, tail, armed, 
 
 
 @njit(cache=True)
-def run(plant, t, R, guard, V, v_bias, Td, x0, log, closed_loop, start, first, dir0, continuous,
-        current, omega, delta, dirs) -> None:
-    """The automaton at instants ``t``: fills current, omega, delta and dirs (the command decided per sample).
-
-    The motor sees ``d * V + v_bias`` once command d has arrived, ``v_bias``
-    before the first one (motor off); ``v_bias`` is how a constant torque
-    enters (``simulate``).  theta = delta / R (eq. 7).
-    """
+def run(plant, c: Controller, t, x0, out, dirs) -> None:
+    """The automaton at instants ``t``: fills ``out`` (rows current, omega, delta) and ``dirs`` (the
+    command decided per sample).  The motor sees ``d * V + v_bias`` once command d has arrived, ``v_bias``
+    before the first one (motor off); ``v_bias`` is how a constant torque enters (``simulate``)."""
     n = len(t)
     arrive = np.empty(n + 16)
     volts = np.empty(n + 16)
     head = tail = 0
     x = (x0[0], x0[1], x0[2])
     d = 0
-    u_m = v_bias
+    u_m = c.v_bias
     for k in range(n):
-        current[k], omega[k], delta[k] = x
-        dn = decide(k, d, x[2] / R, guard, log, closed_loop, start, first, dir0)
+        out[0, k], out[1, k], out[2, k] = x
+        dn = decide(c, k, d, x[2] / c.R)
         if dn != d or k == 0:
-            arrive, volts, head, tail = enqueue(arrive, volts, head, tail, t[k] + Td, dn * V + v_bias)
+            arrive, volts, head, tail = enqueue(arrive, volts, head, tail, t[k] + c.Td, dn * c.V + c.v_bias)
         d = dn
         dirs[k] = d
         if k + 1 == n:
             break
         tk, t_next = t[k], t[k + 1]
-        armed = d if continuous and k >= start else 0
+        armed = d if c.continuous and k >= c.start else 0
         while True:
             while head < tail and arrive[head] <= tk + TIME_EPS:     # landed by the start of the step
                 u_m = volts[head]
                 head += 1
-            x, tk, u_m, head, hit = step(plant, x, k, tk, t_next, u_m, arrive, volts, head, tail, armed, guard)
+            x, tk, u_m, head, hit = step(plant, x, k, tk, t_next, u_m, arrive, volts, head, tail, armed, c.guard)
             if not hit:
                 break
             # the continuous controller reverses the instant theta reaches the guard
             d = armed = -d
-            arrive, volts, head, tail = enqueue(arrive, volts, head, tail, tk + Td, d * V + v_bias)
+            arrive, volts, head, tail = enqueue(arrive, volts, head, tail, tk + c.Td, d * c.V + c.v_bias)

@@ -41,7 +41,7 @@ from numba import njit
 from pipeline.model.linear import step_key
 from pipeline.model.modal import (ModalData, coefficients, event_function, first_root, gd, modal_data, state,
                                   step_matrices, zero_of_derivative)
-from pipeline.model.spec import PlantSpec
+from pipeline.model.params import PlantSpec
 
 MAX_ZERO_LENGTH_EVENTS = 50
 # Step lengths kept per regime, and one-off lengths remembered (to spot the second use of one).
@@ -93,13 +93,9 @@ def plant_constants(spec: PlantSpec) -> tuple[np.ndarray, ModalData]:
 
 @njit(cache=True)
 def new_plant(p: np.ndarray, md: ModalData) -> Plant:
+    """A fresh plant from ``plant_constants`` (regime z = s = +1 until ``reset``)."""
     return Plant(p, md, np.array([1, 1], dtype=np.int64), np.empty((2, STEP_CAPACITY)),
                  np.empty((2, STEP_CAPACITY, 18)), np.empty((2, REQUEST_CAPACITY)), np.zeros(4, dtype=np.int64))
-
-
-def make_plant(spec: PlantSpec) -> Plant:
-    """A fresh plant for ``spec`` (regime z = s = +1 until ``reset``)."""
-    return new_plant(*plant_constants(spec))
 
 
 # -- regime bookkeeping -----------------------------------------------------
@@ -110,9 +106,11 @@ def spring_torque(pl: Plant, delta: float) -> float:
 
 
 @njit(cache=True)
-def net_torque(pl: Plant, I: float, delta: float) -> float:
-    """Torque that Coulomb friction has to hold at w = 0: Kt I - spring."""
-    return pl.p[KT] * I - spring_torque(pl, delta)
+def slip_at_rest(pl: Plant, I: float, delta: float) -> int:
+    """The slip direction at w = 0: stick (0) while Coulomb friction holds the net torque Kt I - spring,
+    else the way that torque turns the pinion."""
+    net = pl.p[KT] * I - spring_torque(pl, delta)
+    return 0 if abs(net) <= pl.p[TC] else (1 if net > 0 else -1)
 
 
 @njit(cache=True)
@@ -129,8 +127,7 @@ def reset(pl: Plant, x: tuple[float, float, float]) -> None:
     elif x[1] < 0.0:
         pl.zs[1] = -1
     else:
-        net = net_torque(pl, x[0], x[2])
-        pl.zs[1] = 0 if abs(net) <= p[TC] else (1 if net > 0 else -1)
+        pl.zs[1] = slip_at_rest(pl, x[0], x[2])
 
 
 @njit(cache=True)
@@ -230,8 +227,7 @@ def _transition(pl: Plant, x, kind: int, arg: int):
         pl.zs[0] = arg
     elif kind == VEL:
         w = 0.0
-        net = net_torque(pl, I, dl)
-        pl.zs[1] = 0 if abs(net) <= pl.p[TC] else (1 if net > 0 else -1)
+        pl.zs[1] = slip_at_rest(pl, I, dl)
     elif kind == STICK:
         w = 0.0
         pl.zs[1] = arg

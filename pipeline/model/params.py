@@ -1,4 +1,5 @@
-"""The paper's parameters (Table I) as one typed object with units.
+"""The model's parameters: the paper's (Table I, the controller, the drive) and, with the effects
+folded in, the plant a simulator runs (``PlantSpec``).
 
 Why ``Ra = 2.59 Ohm`` and not Table I's printed ``2.59e2``: with 259 Ohm the
 static gain theta/u is 0.0165 rad/V, so 6 V holds the pinion near 0.10 rad, the
@@ -11,8 +12,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields, replace
+from typing import TYPE_CHECKING, Iterable
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from pipeline.model.effects.base import Effect
 
 
 @dataclass(frozen=True)
@@ -28,13 +33,6 @@ class ModelParams:
     K1: float = 0.8682      # N/m      spring 1 stiffness
     K2: float = 0.8682      # N/m      spring 2 stiffness
     b: float = 7.7e-4       # N m s/rad viscous friction identified in Sec. IV-A (eq. 8); 0 gives eq. (6)
-
-    UNITS = {
-        "R": "m", "J": "N m s^2", "Ke": "V s/rad", "Kt": "N m/A", "La": "H",
-        "Ra": "Ohm", "K1": "N/m", "K2": "N/m", "b": "N m s/rad",
-    }
-    # b may be zero (the paper's eq. 6); everything else must be strictly positive.
-    NON_NEGATIVE = frozenset({"b"})
 
     @classmethod
     def names(cls) -> tuple[str, ...]:
@@ -54,25 +52,11 @@ class ModelParams:
 
     def state_matrices(self) -> tuple[np.ndarray, np.ndarray]:
         """A, B of eq. (8) for x = [I, w, delta] (eq. (6) when b = 0)."""
-        return state_matrices_of(self.R, self.J, self.Ke, self.Kt, self.La, self.Ra, self.K1, self.K2, self.b)
-
-
-# The parameters A and B are made of, and the one place their formula is written.
-MATRIX_PARAMS = ("R", "J", "Ke", "Kt", "La", "Ra", "K1", "K2", "b")
-
-
-def state_matrices_of(R, J, Ke, Kt, La, Ra, K1, K2, b) -> tuple[np.ndarray, np.ndarray]:
-    """A, B of eq. (8) from scalars (3 x 3, 3) or from equal-length parameter columns (m x 3 x 3, m x 3)."""
-    a00, a01 = -Ra / La, -Ke / La                                 # (2)
-    a10, a11, a12 = Kt / J, -b / J, -R * (K1 + K2) / J            # (4), (8)
-    a21, b0 = R, 1.0 / La                                         # (5), (2)
-    if not isinstance(La, np.ndarray):                            # one set: what every single simulate builds
+        R, J, La = self.R, self.J, self.La
+        a00, a01 = -self.Ra / La, -self.Ke / La                               # (2)
+        a10, a11, a12 = self.Kt / J, -self.b / J, -R * (self.K1 + self.K2) / J   # (4), (8)
+        a21, b0 = R, 1.0 / La                                                 # (5), (2)
         return np.array([[a00, a01, 0.0], [a10, a11, a12], [0.0, a21, 0.0]]), np.array([b0, 0.0, 0.0])
-    A = np.zeros((len(La), 3, 3))
-    A[:, 0, 0], A[:, 0, 1], A[:, 1, 0], A[:, 1, 1], A[:, 1, 2], A[:, 2, 1] = a00, a01, a10, a11, a12, a21
-    B = np.zeros((len(La), 3))
-    B[:, 0] = b0
-    return A, B
 
 
 @dataclass(frozen=True)
@@ -88,3 +72,49 @@ class DriveParams:
     """The H-bridge output: +v_in in q1, -v_in in q2 (Sec. IV-C)."""
 
     v_in: float = 6.0                            # V   12 V at 25 % PWM duty as RMS, 12*sqrt(0.25)
+
+
+@dataclass(frozen=True)
+class PlantSpec:
+    """What a simulator runs: effective parameters plus the mechanisms effects act through, in SI units.
+
+    An effect (``pipeline.model.effects``) never reaches into a simulator; it
+    folds itself into a ``PlantSpec`` through one of these mechanisms, which
+    both the fast simulator and the independent reference plant implement: the
+    base parameters of eqs. (2), (4)/(8), (5) (``params``) and the drive
+    voltage; a constant external torque on the pinion (``torque``); Coulomb
+    friction with a stick mode (``Tc``), a dead zone of the springs (``gap``);
+    a delay between the controller's decision and the motor (``Td``); a
+    sensor-side offset of the measured current (``I0``).
+    """
+
+    params: ModelParams
+    v_drive: float          # V        |u| applied in q1/q2
+    guard_rad: float        # rad      controller guard
+    period_s: float         # s        nominal control period (used when no sample times are given)
+    Tc: float = 0.0         # N m      Coulomb friction torque (0: none)
+    gap: float = 0.0        # rad      total width of the springs' dead zone, centred on theta = 0 (0: none)
+    Td: float = 0.0         # s        delay from deciding sample to motor (0: none)
+    I0: float = 0.0         # A        offset added to the measured current
+    torque: float = 0.0     # N m      constant external torque on the pinion, positive towards +theta
+    v_supply: float | None = None  # V  supply voltage before any driver drop (the paper's V_RMS); None: v_drive
+
+    @property
+    def v_rms(self) -> float:
+        """The voltage the paper's energy estimate multiplies by: the supply's, not what reaches the motor."""
+        return self.v_drive if self.v_supply is None else self.v_supply
+
+    @property
+    def is_linear(self) -> bool:
+        """True when the plant is one affine system per mode (no Coulomb friction, no dead zone)."""
+        return self.Tc == 0.0 and self.gap == 0.0
+
+
+def build_spec(params: ModelParams, controller: ControllerParams, drive: DriveParams,
+               effects: Iterable["Effect"] = ()) -> PlantSpec:
+    """Fold a list of effects into the plant the simulators run (in order; two of a kind stack)."""
+    spec = PlantSpec(params=params, v_drive=drive.v_in, v_supply=drive.v_in, guard_rad=controller.guard_rad,
+                     period_s=controller.period_s)
+    for effect in effects:
+        spec = effect.apply(spec)
+    return spec

@@ -34,13 +34,12 @@ from pipeline.model import loop
 from pipeline.model.linear import run_zoh
 from pipeline.model.event_step import run_events
 from pipeline.model.nonsmooth import plant_constants
-from pipeline.model.spec import PlantSpec
+from pipeline.model.params import PlantSpec
 
 GUARDS = ("sampled", "continuous")
 # The sketch's rule (``loop.next_dir``) as plain Python, for callers that apply it sample by sample
 # outside a kernel (derive's phases, the rig's reference plant): same source, no dispatch per call.
 next_dir = loop.next_dir.py_func
-_NO_LOG = np.zeros(0, dtype=np.int8)
 
 
 @dataclass(frozen=True)
@@ -74,24 +73,9 @@ def sample_times(duration: float, period: float) -> np.ndarray:
     return np.arange(n) * period
 
 
-@dataclass(frozen=True)
-class _Plan:
-    """The controller's schedule: which samples follow a log, where the sampled guard takes over."""
-
-    t: np.ndarray
-    dir_log: np.ndarray | None
-    closed_loop: bool
-    start: int             # first sample decided by the controller (closed loop)
-    first: int             # its mode at ``start`` (0: decide by next_dir from dir0)
-    dir0: int
-
-    @property
-    def log(self) -> np.ndarray:
-        """The logged commands as the kernels take them (int8; empty when there is no log)."""
-        return _NO_LOG if self.dir_log is None else self.dir_log
-
-
-def _plan(spec: PlantSpec, t, duration: float, dir0: int, dir_log, closed_loop: bool, guard: str) -> _Plan:
+def _controller(spec: PlantSpec, t, duration: float, dir0: int, dir_log, closed_loop: bool, guard: str,
+                v_bias: float) -> tuple[np.ndarray, loop.Controller]:
+    """The sample instants and the controller the kernels run, from ``simulate``'s checked arguments."""
     if guard not in GUARDS:
         raise PdrError(f"unknown guard '{guard}', expected one of {', '.join(GUARDS)}", key="guard")
     t = sample_times(duration, spec.period_s) if t is None else np.asarray(t, dtype=float)
@@ -105,16 +89,20 @@ def _plan(spec: PlantSpec, t, duration: float, dir0: int, dir_log, closed_loop: 
     if dir_log is None:
         if not closed_loop:
             raise PdrError("replay (closed_loop=False) needs the logged command", key="dir_log")
-        return _Plan(t, None, closed_loop, 0, 0, int(dir0))
-    dir_log = np.asarray(dir_log)
-    if dir_log.shape != t.shape:
-        raise PdrError(f"expected one command per sample ({len(t)}), got {dir_log.shape}", key="dir_log")
-    if not np.all(np.isin(dir_log, (-1, 0, 1, loop.UNKNOWN))):
-        raise PdrError(f"expected commands -1, 0, 1 or {loop.UNKNOWN} (unknown)", key="dir_log")
-    nz = np.flatnonzero((dir_log != 0) & (dir_log != loop.UNKNOWN))
-    start = int(nz[0]) if len(nz) else len(t)
-    first = int(dir_log[start]) if len(nz) else 0
-    return _Plan(t, dir_log.astype(np.int8), closed_loop, start, first, int(dir0))
+        log, start, first = np.zeros(0, dtype=np.int8), 0, 0
+    else:
+        log = np.asarray(dir_log)
+        if log.shape != t.shape:
+            raise PdrError(f"expected one command per sample ({len(t)}), got {log.shape}", key="dir_log")
+        if not np.all(np.isin(log, (-1, 0, 1, loop.UNKNOWN))):
+            raise PdrError(f"expected commands -1, 0, 1 or {loop.UNKNOWN} (unknown)", key="dir_log")
+        nz = np.flatnonzero((log != 0) & (log != loop.UNKNOWN))
+        start = int(nz[0]) if len(nz) else len(t)
+        first = int(log[start]) if len(nz) else 0
+        log = log.astype(np.int8)
+    return t, loop.Controller(float(spec.params.R), float(spec.guard_rad), float(spec.v_drive), v_bias,
+                              float(spec.Td), log, bool(closed_loop), start, first, int(dir0),
+                              guard == "continuous" and bool(closed_loop))
 
 
 def with_lost_samples(t: np.ndarray, dir_log: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -154,11 +142,19 @@ def simulate(spec: PlantSpec, t: np.ndarray | None = None, *, duration: float = 
     theta crosses the guard instead of at the next sample (for comparison).
     Either way the motor sees a command ``Td`` after it is decided.
     """
-    plan = _plan(spec, t, duration, dir0, dir_log, closed_loop, guard)
+    shift, v_bias = _torque_shift(spec)
+    t, controller = _controller(spec, t, duration, dir0, dir_log, closed_loop, guard, v_bias)
     x = np.array(x0, dtype=float)
-    if spec.is_linear and (guard == "sampled" or not closed_loop):
-        return _run_linear(spec, plan, x)
-    return _run_events(spec, plan, x, continuous=guard == "continuous" and closed_loop)
+    x[0] += shift
+    out, dirs = np.empty((3, len(t))), np.empty(len(t), dtype=np.int8)
+    if spec.is_linear and not controller.continuous:
+        run_zoh(*spec.params.state_matrices(), controller, t, x, out, dirs)       # exact ZOH steps
+    else:
+        run_events(*plant_constants(spec), controller, t, x, out, dirs)          # located events
+    current, omega, delta = out[0] - shift, out[1], out[2]
+    # theta = delta / R (eq. 7): the division the kernels decide with, so the same bits
+    return SimResult(t=t, theta=delta / spec.params.R, omega=omega, current=current, current_measured=current + spec.I0,
+                     delta=delta, dir=dirs, u=dirs * float(spec.v_drive))
 
 
 def _torque_shift(spec: PlantSpec) -> tuple[float, float]:
@@ -167,36 +163,3 @@ def _torque_shift(spec: PlantSpec) -> tuple[float, float]:
         return 0.0, 0.0
     shift = spec.torque / spec.params.Kt
     return shift, spec.params.Ra * shift
-
-
-def _run_linear(spec: PlantSpec, plan: _Plan, x: np.ndarray) -> SimResult:
-    """Exact ZOH stepping in the compiled kernel (``linear.run_zoh``)."""
-    A, B = spec.params.state_matrices()
-    shift, v_bias = _torque_shift(spec)
-    x[0] += shift
-    n = len(plan.t)
-    current, omega, delta = np.empty(n), np.empty(n), np.empty(n)
-    dirs = np.empty(n, dtype=np.int8)
-    run_zoh(plan.t, A, B, float(spec.params.R), float(spec.guard_rad), float(spec.v_drive), v_bias, float(spec.Td),
-            x, plan.log, plan.closed_loop, plan.start, plan.first, plan.dir0, current, omega, delta, dirs)
-    return _result(spec, plan.t, current - shift, omega, delta, dirs)
-
-
-def _run_events(spec: PlantSpec, plan: _Plan, x: np.ndarray, *, continuous: bool) -> SimResult:
-    """Event-driven exact integration in the compiled kernel (``event_step.run_events``)."""
-    shift, v_bias = _torque_shift(spec)
-    x[0] += shift
-    n = len(plan.t)
-    current, omega, delta = np.empty(n), np.empty(n), np.empty(n)
-    dirs = np.empty(n, dtype=np.int8)
-    run_events(plan.t, *plant_constants(spec), float(spec.params.R), float(spec.guard_rad), float(spec.v_drive),
-               v_bias, float(spec.Td), x, plan.log, plan.closed_loop, plan.start, plan.first, plan.dir0, continuous,
-               current, omega, delta, dirs)
-    return _result(spec, plan.t, current - shift, omega, delta, dirs)
-
-
-def _result(spec: PlantSpec, t, current, omega, delta, dirs) -> SimResult:
-    """Package a kernel's outputs: theta = delta / R (eq. 7, the division the kernels decide with, so the
-    same bits); I0 only touches the measured current, u is the command's voltage."""
-    return SimResult(t=t, theta=delta / spec.params.R, omega=omega, current=current, current_measured=current + spec.I0,
-                     delta=delta, dir=dirs, u=dirs * float(spec.v_drive))

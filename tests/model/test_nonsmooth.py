@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from pipeline.config import default_config
-from pipeline.model.nonsmooth import advance, make_plant, reset
+from pipeline.model.nonsmooth import advance, new_plant, plant_constants, reset
 from pipeline.model.simulate import simulate
 from pipeline.rig.plant import simulate_reference
 from tests.model.ivp_reference import jittered_times
@@ -103,7 +103,7 @@ def test_stuck_intervals_hold_still_while_the_net_torque_is_within_tc():
 
 def test_continuous_guard_switches_exactly_at_the_guard():
     spec = replace(BASE, Tc=6e-4, gap=0.1)
-    plant = make_plant(spec)
+    plant = new_plant(*plant_constants(spec))
     x = (0.0, 0.0, 0.0)
     reset(plant, x)
     t, hit = 0.0, False

@@ -12,7 +12,7 @@ import pkgutil
 
 from pipeline.errors import ConfigError
 from pipeline.model.effects.base import REGISTRY, SIGNATURES, Effect, Param
-from pipeline.model.spec import PlantSpec, build_spec
+from pipeline.model.params import PlantSpec, build_spec
 
 for _module in pkgutil.iter_modules(__path__):
     if _module.name != "base":

@@ -2,8 +2,10 @@
 
 A subclass is a frozen dataclass with one float field per ``Param`` and lives
 in its own module of this package; defining it registers it in the catalogue
-(``pipeline.model.effects.CATALOGUE``), so nothing else has to name it.  What
-it declares, and who reads it:
+(``pipeline.model.effects.CATALOGUE``), so nothing else has to name it.  Its
+``name``, ``ORDER``, ``WHAT``, ``PARAMS`` and ``SIGNATURE`` are plain class
+attributes (typed here, on ``Effect``; only the parameters are annotated in a
+subclass, so only they are dataclass fields).  What it declares, and who reads it:
 
 - ``PARAMS``: name, unit, physical bounds, the value meaning "absent", a
   typical visible value, the coarse scan points of discovery (as an lmfit
@@ -22,7 +24,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from pipeline.model.spec import PlantSpec
+from pipeline.model.params import PlantSpec
 
 # Where an effect's residual fingerprint lives (``pipeline.discover.selection.signature_energy``).
 SIGNATURES = ("everywhere", "after_switch", "low_speed", "after_zero_crossing", "current_bias")

@@ -5,12 +5,11 @@ on theta = -Tl / (R^2 (K1 + K2)) instead of 0."""
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import ClassVar
 
 import numpy as np
 
 from pipeline.model.effects.base import Effect, Param
-from pipeline.model.spec import PlantSpec
+from pipeline.model.params import PlantSpec
 
 _MAGNITUDES = tuple(float(v) for v in np.geomspace(1e-5, 5e-3, 12))
 
@@ -18,13 +17,13 @@ _MAGNITUDES = tuple(float(v) for v in np.geomspace(1e-5, 5e-3, 12))
 @dataclass(frozen=True)
 class ConstantLoadTorque(Effect):
     Tl: float
-    name: ClassVar[str] = "constant_load_torque"
-    ORDER: ClassVar[int] = 9
-    WHAT: ClassVar[str] = "J dw/dt gains -Tl: a constant torque on the pinion"
-    PARAMS: ClassVar[tuple[Param, ...]] = (
+    name = "constant_load_torque"
+    ORDER = 9
+    WHAT = "J dw/dt gains -Tl: a constant torque on the pinion"
+    PARAMS = (
         Param("Tl", "N m", bounds=(-2e-2, 2e-2), absent=0.0, typical=1e-3,
               scan=(*(-v for v in reversed(_MAGNITUDES)), 0.0, *_MAGNITUDES)),)
-    SIGNATURE: ClassVar[str] = "everywhere"
+    SIGNATURE = "everywhere"
 
     def apply(self, spec: PlantSpec) -> PlantSpec:
         return replace(spec, torque=spec.torque - self.Tl)

@@ -3,24 +3,23 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import ClassVar
 
 import numpy as np
 
 from pipeline.model.effects.base import Effect, Param
-from pipeline.model.spec import PlantSpec
+from pipeline.model.params import PlantSpec
 
 
 @dataclass(frozen=True)
 class CurrentSensorOffset(Effect):
     I0: float
-    name: ClassVar[str] = "current_sensor_offset"
-    ORDER: ClassVar[int] = 6
-    WHAT: ClassVar[str] = "the measured current is I + I0 (ACS712 zero mis-set)"
-    PARAMS: ClassVar[tuple[Param, ...]] = (
+    name = "current_sensor_offset"
+    ORDER = 6
+    WHAT = "the measured current is I + I0 (ACS712 zero mis-set)"
+    PARAMS = (
         Param("I0", "A", bounds=(-1.0, 1.0), absent=0.0, typical=0.06,
               scan=tuple(np.linspace(-1.0, 1.0, 161))),)
-    SIGNATURE: ClassVar[str] = "current_bias"
+    SIGNATURE = "current_bias"
 
     def apply(self, spec: PlantSpec) -> PlantSpec:
         return replace(spec, I0=spec.I0 + self.I0)

@@ -3,22 +3,21 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import ClassVar
 
 from pipeline.model.effects.base import Effect, Param, geometric_scan
-from pipeline.model.spec import PlantSpec
+from pipeline.model.params import PlantSpec
 
 
 @dataclass(frozen=True)
 class DriverVoltageDrop(Effect):
     Vd: float
-    name: ClassVar[str] = "driver_voltage_drop"
-    ORDER: ClassVar[int] = 3
-    WHAT: ClassVar[str] = "the H-bridge loses Vd: u = sign * max(V_in - Vd, 0)"
-    PARAMS: ClassVar[tuple[Param, ...]] = (
+    name = "driver_voltage_drop"
+    ORDER = 3
+    WHAT = "the H-bridge loses Vd: u = sign * max(V_in - Vd, 0)"
+    PARAMS = (
         Param("Vd", "V", bounds=(0.0, 6.0), absent=0.0, typical=1.2,
               scan=geometric_scan(5.0)),)
-    SIGNATURE: ClassVar[str] = "everywhere"
+    SIGNATURE = "everywhere"
 
     def apply(self, spec: PlantSpec) -> PlantSpec:
         return replace(spec, v_drive=max(spec.v_drive - self.Vd, 0.0))

@@ -3,24 +3,23 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import ClassVar
 
 import numpy as np
 
 from pipeline.model.effects.base import Effect, Param
-from pipeline.model.spec import PlantSpec
+from pipeline.model.params import PlantSpec
 
 
 @dataclass(frozen=True)
 class SpringStiffness(Effect):
     k_scale: float
-    name: ClassVar[str] = "spring_stiffness"
-    ORDER: ClassVar[int] = 8
-    WHAT: ClassVar[str] = "K1 = K2 = k_scale * 0.8682 (both springs scaled)"
-    PARAMS: ClassVar[tuple[Param, ...]] = (
+    name = "spring_stiffness"
+    ORDER = 8
+    WHAT = "K1 = K2 = k_scale * 0.8682 (both springs scaled)"
+    PARAMS = (
         Param("k_scale", "-", bounds=(0.2, 5.0), absent=1.0, typical=1.3,
               scan=tuple(np.unique(np.concatenate([np.geomspace(0.25, 4.0, 17), [0.9, 0.95, 0.98, 1.0, 1.02, 1.05, 1.1]])))),)
-    SIGNATURE: ClassVar[str] = "everywhere"
+    SIGNATURE = "everywhere"
 
     def apply(self, spec: PlantSpec) -> PlantSpec:
         return replace(spec, params=spec.params.with_(K1=spec.params.K1 * self.k_scale, K2=spec.params.K2 * self.k_scale))

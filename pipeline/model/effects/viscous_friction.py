@@ -3,22 +3,21 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import ClassVar
 
 from pipeline.model.effects.base import Effect, Param, geometric_scan
-from pipeline.model.spec import PlantSpec
+from pipeline.model.params import PlantSpec
 
 
 @dataclass(frozen=True)
 class ViscousFriction(Effect):
     b: float
-    name: ClassVar[str] = "viscous_friction"
-    ORDER: ClassVar[int] = 1
-    WHAT: ClassVar[str] = "J dw/dt gains -b*w"
-    PARAMS: ClassVar[tuple[Param, ...]] = (
+    name = "viscous_friction"
+    ORDER = 1
+    WHAT = "J dw/dt gains -b*w"
+    PARAMS = (
         Param("b", "N m s/rad", bounds=(0.0, 0.01), absent=0.0, typical=0.00077,
               scan=geometric_scan(1e-2)),)
-    SIGNATURE: ClassVar[str] = "everywhere"
+    SIGNATURE = "everywhere"
 
     def apply(self, spec: PlantSpec) -> PlantSpec:
         return replace(spec, params=spec.params.with_(b=spec.params.b + self.b))

@@ -1,4 +1,9 @@
-"""``pdr simulate``: the rig's model alone, closed loop from rest (INTERFACE.md)."""
+"""``pdr simulate``: the rig's model alone, closed loop from rest (INTERFACE.md).
+
+Not in ``pipeline.model``: the report is the model's run plus the derive
+stage's energy balance, and the model package is what the stages import,
+never the other way round.
+"""
 
 from __future__ import annotations
 
