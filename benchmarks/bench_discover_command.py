@@ -12,6 +12,8 @@ decisions (verdict, effects and their parameters) are compared to the first vari
         --variant after=.venv/bin/pdr [--variant after-here=.venv/bin/pdr:PDR_DISCOVER_DRAW=here] \\
         [--indices 0,10,...] [--seed 15] [--out benchmarks/results/discover_command.json]
 
+Without ``--variant`` (as ``make bench`` runs it): this install's ``pdr`` alone.
+
 A variant is ``NAME=PDR[:ENV=VALUE,...]``; the default indices are 25 of the baseline's timed
 draws and its five slowest decisions.
 """
@@ -23,6 +25,7 @@ import json
 import os
 import resource
 import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -30,6 +33,8 @@ from pathlib import Path
 import numpy as np
 
 DEFAULT_INDICES = (*range(0, 250, 10), 93, 62, 275, 101, 65)
+DEFAULT_OUT = Path("benchmarks/results/discover_command.json")
+PDR = Path(sys.executable).with_name("pdr")
 
 
 def _parse_variant(text: str) -> tuple[str, Path, dict[str, str]]:
@@ -61,7 +66,11 @@ def _stats(values: list[float]) -> dict:
     return {"median": float(np.median(values)), "max": float(np.max(values)), "mean": float(np.mean(values))}
 
 
-def main(variants: list[tuple[str, Path, dict[str, str]]], indices: list[int], seed: int, out: Path) -> dict:
+def main(variants: list[tuple[str, Path, dict[str, str]]] | None = None, indices: list[int] | tuple[int, ...] = DEFAULT_INDICES,
+         seed: int = 15, out: Path = DEFAULT_OUT) -> dict:
+    """``variants`` default: this install's ``pdr`` as a user gets it (what ``make bench`` runs)."""
+    variants = variants or [("this", PDR, {})]
+    indices = list(indices)
     from pipeline.rig.randomised import randomised_setup
     from pipeline.rig.recording import make_recording, write_recording
 
@@ -114,9 +123,9 @@ def main(variants: list[tuple[str, Path, dict[str, str]]], indices: list[int], s
 
 if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--variant", action="append", required=True, help="NAME=PDR[:ENV=VALUE,...]")
+    ap.add_argument("--variant", action="append", help="NAME=PDR[:ENV=VALUE,...] (default: this install's pdr)")
     ap.add_argument("--indices", default=",".join(map(str, DEFAULT_INDICES)))
     ap.add_argument("--seed", type=int, default=15)
-    ap.add_argument("--out", type=Path, default=Path("benchmarks/results/discover_command.json"))
+    ap.add_argument("--out", type=Path, default=DEFAULT_OUT)
     a = ap.parse_args()
-    main([_parse_variant(v) for v in a.variant], [int(x) for x in a.indices.split(",")], a.seed, a.out)
+    main([_parse_variant(v) for v in a.variant or []], [int(x) for x in a.indices.split(",")], a.seed, a.out)
