@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import signal
 from dataclasses import replace
 from pathlib import Path
 
@@ -49,7 +50,9 @@ def _draw(paths: dict[str, Path], d, report_md: str, rrd: bool) -> None:
 def _serve(conn) -> None:
     """The second process: import, then draw the one discovery it is sent (None: nothing to draw).
     It answers whether it drew; on failure the first process draws again itself, so an error is
-    reported there as it would have been without a second process."""
+    reported there as it would have been without a second process.  Ctrl-C is the first process's
+    to handle (it stops this one), so it prints no second traceback."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     _warm()
     try:
         job = conn.recv()
