@@ -38,6 +38,7 @@ def discover(
     import tempfile
 
     from pipeline.discover.adopt import adopt as adopt_effects
+    from pipeline.discover.drawing import Drawer, idle_core
     from pipeline.discover.report import dumps, write_outputs
     from pipeline.discover.stage import augmented_effects, discover_run
     from pipeline.errors import PdrError
@@ -54,7 +55,8 @@ def discover(
     if item.suffix.lower() == ".csv" and not item.is_file():
         raise PdrError("no such raw recording: expected a CSV file, a processed run folder or a run name",
                        path=recording)
-    with tempfile.TemporaryDirectory(prefix="pdr-discover-") as tmp:
+    # the figures' and the .rrd's imports and drawing overlap the decision when a core is free
+    with Drawer(background=idle_core()) as drawer, tempfile.TemporaryDirectory(prefix="pdr-discover-") as tmp:
         if item.suffix.lower() == ".csv" and item.is_file():
             from pipeline.derive.stage import derive_run
             from pipeline.ingest.stage import ingest_recording
@@ -75,7 +77,7 @@ def discover(
             doc["segments"] = {"used": paths.name, "others": [p.name for p in runs if p != paths]}
         root = processed if item.suffix.lower() == ".csv" or not item.is_dir() else item.parent
         out_dir = out if out is not None else Path(root) / DISCOVERY_DIR / paths.name
-        written = write_outputs(out_dir, d, doc, rrd=not no_rrd)
+        written = write_outputs(out_dir, d, doc, rrd=not no_rrd, drawer=drawer)
     if adopt:
         if not d.effects:
             doc["adopted"] = None

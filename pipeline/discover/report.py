@@ -35,7 +35,7 @@ def _measured(d: Discovery, column: str) -> np.ndarray | None:
 
 def _png(fig) -> bytes:
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90, metadata={"Software": None})
+    fig.savefig(buf, format="png", dpi=90, metadata={"Software": None}, pil_kwargs={"compress_level": 1})
     return buf.getvalue()
 
 
@@ -111,7 +111,7 @@ def localisation_png(d: Discovery) -> bytes:
                         ms=3, lw=1.0, label=f"{s} {label}")
         ax.axhline(1.0, color="0.5", lw=0.6)
         ax.set_yscale("log")
-        ax.set_title(key.replace("_", " "), fontsize=9)
+        ax.set_title(key.replace("_", " "), fontsize=9, y=1.0)   # y given: no search for ticks above
         ax.set_xlabel("lag [samples]" if "after" in key else "bin (quantiles, low to high)", fontsize=8)
         ax.set_ylabel("residual RMS / noise sigma", fontsize=8)
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))
@@ -177,7 +177,7 @@ def candidates_png(d: Discovery) -> bytes:
         seen += [f for f in fate if f not in seen]
         ax.barh(names[::-1], scores[::-1], color=[OUTCOME_COLORS[f] for f in fate[::-1]])
         ax.set_xlim(0, 1.05)
-        ax.set_title(f"round {rnd[0].round}: share of held-out structure removed", fontsize=9)
+        ax.set_title(f"round {rnd[0].round}: share of held-out structure removed", fontsize=9, y=1.0)
         ax.tick_params(labelsize=8)
     axes[-1].set_xlabel("share of held-out structure removed (1 = all of it)", fontsize=8)
     order = [f for f in OUTCOME_COLORS if f in seen]
@@ -259,23 +259,32 @@ def _tables_md(d: Discovery) -> list[str]:
     return out
 
 
-def write_outputs(out_dir: Path, d: Discovery, doc: dict, *, rrd: bool = True) -> dict[str, Path]:
-    """Every output of one discovery into ``out_dir`` (atomic writes); returns the paths."""
+def write_outputs(out_dir: Path, d: Discovery, doc: dict, *, rrd: bool = True, drawer=None) -> dict[str, Path]:
+    """Every output of one discovery into ``out_dir`` (atomic writes); returns the paths.  The
+    figures and the .rrd are drawn by ``drawer`` (``drawing.Drawer``: perhaps in a second process)."""
     out_dir = Path(out_dir)
     paths = {k: out_dir / v for k, v in FILES.items()}
     write_json(paths["json"], doc)
     write_text(paths["toml"], effects_toml_snippet(augmented_effects(d)))
+    md = markdown(d, doc)
+    write_text(paths["markdown"], md)
+    if drawer is None:
+        write_figures(paths, d, md, rrd=rrd)
+    else:
+        drawer.draw(paths, d, md, rrd)
+    if not rrd:
+        paths.pop("rrd")
+    return paths
+
+
+def write_figures(paths: dict[str, Path], d: Discovery, report_md: str, *, rrd: bool) -> None:
+    """The four PNGs and (``rrd``) the Rerun recording, at ``paths`` (``FILES``' keys)."""
     write_bytes(paths["signals_png"], signals_png(d))
     write_bytes(paths["residuals_png"], residuals_png(d))
     write_bytes(paths["candidates_png"], candidates_png(d))
     write_bytes(paths["localisation_png"], localisation_png(d))
-    md = markdown(d, doc)
-    write_text(paths["markdown"], md)
     if rrd:
-        write_rrd(paths["rrd"], d, md)
-    else:
-        paths.pop("rrd")
-    return paths
+        write_rrd(paths["rrd"], d, report_md)
 
 
 def dumps(doc: dict) -> str:

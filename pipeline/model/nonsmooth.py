@@ -32,6 +32,7 @@ so one simulation is one compiled call.
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import NamedTuple
 
@@ -76,8 +77,10 @@ class Plant(NamedTuple):
     counts: np.ndarray       # [steps in regime 0, in regime 1, requests in 0, in 1]
 
 
+@functools.lru_cache(maxsize=64)
 def plant_constants(spec: PlantSpec) -> tuple[np.ndarray, ModalData]:
-    """The plant's constants and the eigendecompositions of its two regimes (numpy, once per simulation)."""
+    """The plant's constants and the eigendecompositions of its two regimes (numpy, once per plant:
+    a start estimate and a fit simulate the same plant many times; the kernels only read them)."""
     p = spec.params
     A, _ = p.state_matrices()
     A_dead = A.copy()

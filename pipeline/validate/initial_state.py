@@ -166,11 +166,22 @@ class _Problem:
         self.which = np.concatenate(which)
         self.noise = np.array([max(float(observed[s][1]), 1e-30) for s in self.names])
         self.current_rows = (np.array(self.names) == "current")[self.which].astype(float)
+        self._runs: dict[bytes, SimResult] = {}
 
     def run(self, z, commands, *, logged: bool = True) -> SimResult:
-        """Replay from ``z`` under the pre-log ``commands`` and (``logged``) the logged ones, else motor off."""
+        """Replay from ``z`` under the pre-log ``commands`` and (``logged``) the logged ones, else motor off.
+
+        Remembered by the exact inputs until ``forget_runs``: a Gauss-Newton refinement asks again for
+        the state it has just tried or stepped from (its Jacobian's base point, the next call's start)."""
         log = np.concatenate([np.asarray(commands, dtype=np.int8), self.log if logged else np.zeros_like(self.log)])
-        return simulate(self.spec, self.t, x0=tuple(z), dir0=first_dir(log), dir_log=log, closed_loop=False)
+        key = np.asarray(z, dtype=float).tobytes() + log.tobytes()
+        if key not in self._runs:
+            self._runs[key] = simulate(self.spec, self.t, x0=tuple(z), dir0=first_dir(log), dir_log=log,
+                                       closed_loop=False)
+        return self._runs[key]
+
+    def forget_runs(self) -> None:
+        self._runs.clear()
 
     def outputs(self, sim: SimResult, measured: bool = True) -> np.ndarray:
         """Model outputs at the real samples (``measured``: the current as the sensor reads it, + I0)."""
@@ -340,6 +351,7 @@ class StartEstimator:
         likelihood (the measure discovery scores with, one variance per signal) wins.
         """
         p = self.p
+        p.forget_runs()
         key = self.window(dir_log)
         p.log = np.frombuffer(key, dtype=np.int8).copy()
         if key not in self._base:
@@ -377,6 +389,7 @@ class StartEstimator:
                 if np.allclose(variances, previous, rtol=0.1):
                     break
             x0 = _state(p.run(a * STATE_SCALES, commands), p.m)
+        p.forget_runs()
         Jw = J * w[:, None]
         scale = _residual_scale(residual * w, p.dof)
         cov_x = Phi @ (scale * np.linalg.pinv(Jw.T @ Jw)) @ Phi.T + _spread(fits, Phi, scale)

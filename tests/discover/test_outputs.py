@@ -37,7 +37,9 @@ def delay_run(tmp_path_factory):
     work = tmp_path_factory.mktemp("delay")
     _, _, csv = rig_kinematics((_effect("loop_delay", 0.05),), seed=8, work=work)
     out = work / "out"
-    res = runner.invoke(app, ["discover", str(csv), "--json", "--out", str(out)])
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("PDR_DISCOVER_DRAW", "here")               # figures drawn in this process
+        res = runner.invoke(app, ["discover", str(csv), "--json", "--out", str(out)])
     assert res.exit_code == 0, res.output
     return csv, out, json.loads(res.stdout)
 
@@ -103,8 +105,9 @@ def test_rrd_has_measurement_models_and_residuals(delay_run):
 
 
 @pytest.mark.slow
-def test_rerun_gives_identical_files(delay_run, tmp_path):
+def test_rerun_gives_identical_files(delay_run, tmp_path, monkeypatch):
     csv, out, _ = delay_run
+    monkeypatch.setenv("PDR_DISCOVER_DRAW", "process")         # figures drawn by a second process this time
     res = runner.invoke(app, ["discover", str(csv), "--out", str(tmp_path), "--no-rrd"])
     assert res.exit_code == 0, res.output
     for name in ("discovery.json", "effects.toml", "report.md", "signals.png", "residuals.png",

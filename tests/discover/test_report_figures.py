@@ -56,3 +56,39 @@ def test_candidates_png_paints_only_the_adopted_bars_green(backlash_discovery):
     bars = np.count_nonzero(np.diff(rows) > 1) + 1 if len(rows) else 0
     assert bars == outcomes(d).count("adopted") == 1
     assert OUTCOME_COLORS["adopted"] == "tab:green"
+
+
+def _figures(out):
+    return {p.name: p.read_bytes() for p in sorted(out.iterdir()) if p.suffix == ".png"}
+
+
+def test_a_second_process_draws_the_same_figures_and_one_that_died_is_replaced(backlash_discovery, tmp_path):
+    from pipeline.discover.drawing import Drawer
+    from pipeline.discover.report import write_outputs
+
+    d, doc = backlash_discovery
+    here = write_outputs(tmp_path / "here", d, doc, rrd=False, drawer=Drawer(background=False))
+    with Drawer(background=True) as drawer:
+        write_outputs(tmp_path / "process", d, doc, rrd=False, drawer=drawer)
+        assert drawer._proc is None                     # it drew, then was stopped
+    assert len(_figures(tmp_path / "here")) == 4
+    assert _figures(tmp_path / "process") == _figures(tmp_path / "here")
+    assert set(here) == {"json", "toml", "markdown", "signals_png", "residuals_png", "localisation_png",
+                         "candidates_png"}
+    with Drawer(background=True) as drawer:
+        drawer._proc.kill()
+        drawer._proc.join()
+        write_outputs(tmp_path / "died", d, doc, rrd=False, drawer=drawer)
+    assert _figures(tmp_path / "died") == _figures(tmp_path / "here")
+
+
+def test_drawer_is_used_only_with_an_idle_core(monkeypatch):
+    from pipeline.discover import drawing
+
+    monkeypatch.setattr(drawing.os, "cpu_count", lambda: 2)
+    monkeypatch.setattr(drawing.os, "getloadavg", lambda: (1.5, 1.0, 1.0))
+    assert not drawing.idle_core()
+    monkeypatch.setattr(drawing.os, "getloadavg", lambda: (0.7, 1.0, 1.0))
+    assert drawing.idle_core()
+    monkeypatch.setenv("PDR_DISCOVER_DRAW", "here")
+    assert not drawing.idle_core()
