@@ -111,7 +111,8 @@ def run_one(index: int, seed: int, work: Path, timed: bool) -> dict:
     errors = {}
     for name_, params in row["truth"].items():
         if name_ in found:
-            errors[name_] = max(abs(found[name_][k] - v) / abs(v) for k, v in params.items())
+            err = max(abs(found[name_][k] - v) / abs(v) for k, v in params.items())
+            errors[name_] = err if np.isfinite(err) else None      # a parameter found as NaN: kept, not lost in JSON
     right = set(found) == set(row["truth"]) and doc["verdict"] == row["expected"]
     return row | {"verdict": doc["verdict"], "found": found, "right": right, "param_err": errors}
 
@@ -131,7 +132,7 @@ def summarise(rows: list[dict]) -> dict:
     for name in CATALOGUE:
         present = df["truth"].map(lambda t: name in t)
         named = df["found"].map(lambda f: name in f)
-        errs = [r["param_err"][name] for r in rows if name in r["param_err"]]
+        errs = [r["param_err"][name] for r in rows if r["param_err"].get(name) is not None]
         per_effect.append({"effect": name, "hidden_in": int(present.sum()), "named_when_hidden": int((present & named).sum()),
                            "named_when_absent": int((~present & named).sum()),
                            "param_err_median": float(np.median(errs)) if errs else None,
@@ -139,7 +140,8 @@ def summarise(rows: list[dict]) -> dict:
     single = df[df["n_effects"] == 1]
     first = single.apply(lambda r: next(iter(r["found"]), r["verdict"]), axis=1) if len(single) else pd.Series(dtype=str)
     confusion = pd.crosstab(single["label"], first) if len(single) else pd.DataFrame()
-    errs = [e for r in rows for e in r["param_err"].values()]
+    named_errs = [e for r in rows for e in r["param_err"].values()]
+    errs = [e for e in named_errs if e is not None]
     no_effect = df[df["label"].eq("clean") | df["label"].str.startswith("outside:")]
     timed = df[df["discover_wall_s"].notna()]
     wall, cpu = timed["discover_wall_s"].astype(float), timed["discover_cpu_s"].astype(float)
@@ -154,7 +156,8 @@ def summarise(rows: list[dict]) -> dict:
         "per_effect": per_effect,
         "param_err_median": float(np.median(errs)) if errs else None,
         "param_err_max": float(np.max(errs)) if errs else None,
-        "param_err_within_20pct": f"{sum(e <= 0.2 for e in errs)}/{len(errs)}",
+        "param_err_within_20pct": f"{sum(e <= 0.2 for e in errs)}/{len(named_errs)}",
+        "param_err_not_finite": len(named_errs) - len(errs),
         "command_timed": len(timed),
         "command_agrees_with_in_process": f"{int(agree.astype(bool).sum())}/{len(agree)}",
         "in_process_cpu_s": {"median": float(df["in_process_cpu_s"].median()), "max": float(df["in_process_cpu_s"].max())}
@@ -238,7 +241,7 @@ def main(recordings: int, seed: int, out: Path, workers: int = 2, timed_every: i
                 log.flush()
             rows.append(r)
             print(f"{'ok ' if r['right'] else 'BAD'} {r['index']:4d} {r['label']:60s} -> {r['verdict']:11s} "
-                  f"{'+'.join(r['found']) or '-':50s} err {max(r['param_err'].values(), default=float('nan')):.3f} "
+                  f"{'+'.join(r['found']) or '-':50s} err {max((e if e is not None else float('inf') for e in r['param_err'].values()), default=float('nan')):.3f} "
                   f"{r['samples']:6d} samples"
                   + (f" pdr discover {r['discover_wall_s']:.2f} s wall {r['discover_cpu_s']:.2f} s CPU"
                      if r["discover_wall_s"] is not None else "")
