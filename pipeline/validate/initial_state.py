@@ -320,13 +320,16 @@ class StartEstimator:
         self.p = p
         self._base: dict[bytes, np.ndarray] = {}
 
-    def _nearly_affine(self, a: np.ndarray, commands, predicted: np.ndarray, w: np.ndarray) -> bool:
-        """Whether the full simulation from the superposed estimate misses by no more than the
-        superposition predicted (+5 %): Coulomb friction that never sticks in the window, a dead
-        zone never crossed.  One simulation instead of a Gauss-Newton refinement."""
+    def _nearly_affine(self, a: np.ndarray, commands, predicted: np.ndarray) -> bool:
+        """Whether the full simulation from the superposed estimate is the superposition's
+        prediction to within one noise variance over the whole window: Coulomb friction that
+        never sticks in the window, a dead zone never crossed.  One simulation instead of a
+        Gauss-Newton refinement.  Sample by sample and weighted by the noise: a superposed fit
+        that misses (a dead zone crossed) inflates its misfit weights, under which a wrong
+        start can still look no worse than the prediction."""
         p = self.p
         full = p.y - p.outputs(p.run(a * STATE_SCALES, commands))
-        return float(np.sum((full * w) ** 2)) <= 1.05 * float(np.sum((predicted * w) ** 2)) + 1.0
+        return float(np.sum(((full - predicted) * p.weights(p.noise)) ** 2)) <= 1.0
 
     def window(self, dir_log: np.ndarray) -> bytes:
         """The part of a command sequence the estimate sees (a cache key)."""
@@ -365,7 +368,7 @@ class StartEstimator:
         _, commands, a = fits[0]
         w = p.weights(variances)
         J = F
-        if p.spec.is_linear or self._nearly_affine(a, commands, residual, w):
+        if p.spec.is_linear or self._nearly_affine(a, commands, residual):
             x0 = Phi @ a
         else:
             # not affine in x0 (Coulomb friction, backlash): Gauss-Newton on the full simulation
