@@ -47,7 +47,6 @@ SIGNATURE_SHRINK = 0.5       # the motivating pattern must at least halve ...
 SIGNATURE_NOISE = 3.0        # ... or fall to this many noise variances
 DOMINANT_SHARE = 0.8         # ... or the candidate remove this share of all held-out structure
 STRUCTURE_FLOORS = 25.0      # residual MSE above this many noise variances is structure
-AT_NOISE_FLOORS = 3.0        # after an effect, stop when every signal is within this of its noise floor
 NEAR_TIE = 2.0              # runner-up leaves at most twice the winner's held-out structure (+1 noise variance)
 MAX_EFFECTS = 3
 # A further round starts only if, at the last round's count, it ends within this many simulations (about
@@ -226,6 +225,14 @@ def excess(ev: Evaluator, effects: tuple[Effect, ...]) -> dict[str, float]:
     return {s: m / ev.floor[s] - 1.0 for s, m in ev.mse(ev.sim(effects)).items()}
 
 
+def worth_another_round(left: dict[str, float]) -> bool:
+    """Whether any signal keeps enough structure (MSE above its noise, in noise variances) for a
+    candidate to pass ``improvement_vs_noise``: the stop and the check use one threshold.  A
+    sensor offset of a noise sigma next to another effect is one noise variance in the current,
+    many sigmas over hundreds of samples; a stop at a few noise variances never tried it."""
+    return any(v >= MIN_GAIN_FLOORS[s] for s, v in left.items())
+
+
 def select(meas: Measurement, names: tuple[str, ...] | None = None) -> Selection:
     """The discovery loop on one recording (replay fits; closed loop is confirmed by the caller)."""
     names = tuple(CATALOGUE) if names is None else names
@@ -243,7 +250,7 @@ def select(meas: Measurement, names: tuple[str, ...] | None = None) -> Selection
     stopped_for_time = False
     for round_ in range(1, MAX_EFFECTS + 1):
         remaining = [n for n in names if n not in {e.name for e in effects}]
-        if not remaining or (effects and max(excess(ev, effects).values()) < AT_NOISE_FLOORS):
+        if not remaining or (effects and not worth_another_round(excess(ev, effects))):
             break
         round_start = ev.simulations
         if round_ > 1 and round_start + last_round > SIMULATION_BUDGET:
