@@ -121,3 +121,12 @@ def test_a_backlash_plant_opened_mid_motion_starts_where_the_rig_was(cut):
     kin, truth, _ = _opened_at(spec, cut, seed=4)
     start = initial_state(kin, spec)
     assert np.all(np.abs(np.array(start.x0) - truth) <= np.array([0.01, 0.1, 1e-4]))
+
+
+def test_a_constant_load_torque_is_not_superposed_once_per_unit_state():
+    """The load torque drives the plant even from rest with the motor off; the unit responses must not
+    each carry that forced response, or the superposed start is off by amperes."""
+    spec = CFG.plant_spec((make_effect("constant_load_torque", {"Tl": -1.7e-3}),))
+    kin, truth, _ = _opened_at(spec, 137, seed=5)
+    start = initial_state(kin, spec)
+    assert np.all(np.abs(np.array(start.x0) - truth) <= np.array([3e-3, 0.02, 2e-5]))
