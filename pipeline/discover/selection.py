@@ -14,7 +14,10 @@ A candidate is added only when all of these hold (issue 6, step 3):
 
 The best passing candidate (largest held-out likelihood gain) is added, all
 added parameters are refitted jointly, and the round repeats (stacked effects,
-at most ``MAX_EFFECTS``).  The verdict: ``none`` when nothing was added and the
+at most ``MAX_EFFECTS``, while some signal keeps structure a candidate could remove).
+Then each adopted effect is tried against the near-twins that also passed in its round,
+with the later effects beside them (``swap_twins``), and an effect the others made
+redundant is dropped (``prune``).  The verdict: ``none`` when nothing was added and the
 residual is at the noise floor; ``explained`` when effects were added and what
 is left is within ``STRUCTURE_FLOORS`` of it; ``unexplained`` when structure
 remains that no candidate removes (effects that passed every rule on the way
@@ -30,7 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pipeline.discover.candidates import Evaluator, Fit, Scan, fit_candidate, folds_by_cycle, parameter_of, prune, scan
-from pipeline.discover.joint import effect_intervals, sensitivity
+from pipeline.discover.joint import effect_intervals, joint_fit, sensitivity
 from pipeline.discover.measurement import Measurement, ambiguous_switches, settle_switches
 from pipeline.discover.residuals import events, noise_floor, residuals
 from pipeline.model.effects import CATALOGUE, Effect
@@ -225,6 +228,32 @@ def excess(ev: Evaluator, effects: tuple[Effect, ...]) -> dict[str, float]:
     return {s: m / ev.floor[s] - 1.0 for s, m in ev.mse(ev.sim(effects)).items()}
 
 
+def swap_twins(ev: Evaluator, effects: tuple[Effect, ...],
+               rounds: list[list[Assessment | Screened]]) -> tuple[Effect, ...]:
+    """Each adopted effect against the candidates that also passed every check in its round, with
+    the effects adopted later now beside them: a round picks among near-twins (a softer spring and a
+    heavier rack both slow the oscillation) before the later effects are known, and the choice is
+    right only once they are.  A twin replaces the effect when, all refitted jointly, it fits every
+    sample better by half ``MAX_DELTA_BIC`` (equal parameter counts: the likelihoods compare)."""
+    nll = ev.nll(ev.sim(effects))
+    for rnd in rounds:
+        adopted = next((a.fit.name for a in rnd if a.accepted and a.fit.name in {e.name for e in effects}), None)
+        if adopted is None:
+            continue
+        for twin in (a for a in rnd if a.accepted and a.fit.name not in {e.name for e in effects}):
+            i = next(k for k, e in enumerate(effects) if e.name == adopted)
+            trial = joint_fit(ev, (*effects[:i], twin.fit.effect, *effects[i + 1:]))
+            trial_nll = ev.nll(ev.sim(trial))
+            if trial_nll < nll + 0.5 * MAX_DELTA_BIC:
+                effects, nll, adopted = trial, trial_nll, twin.fit.name
+                for _ in range(2):      # the partners had settled around the old twin: let them move on
+                    effects, before = joint_fit(ev, effects), nll
+                    nll = ev.nll(ev.sim(effects))
+                    if nll > before - 1.0:
+                        break
+    return effects
+
+
 def worth_another_round(left: dict[str, float]) -> bool:
     """Whether any signal keeps enough structure (MSE above its noise, in noise variances) for a
     candidate to pass ``improvement_vs_noise``: the stop and the check use one threshold.  A
@@ -284,6 +313,7 @@ def select(meas: Measurement, names: tuple[str, ...] | None = None) -> Selection
                         "runner_up_accepted": bool(runner.accepted)}
         effects = best.fit.effects
         last_round = ev.simulations - round_start
+    effects = swap_twins(ev, effects, rounds)
     kept = prune(ev, effects)
     pruned = [e.name for e in effects if e.name not in {k.name for k in kept}]
     effects = kept
