@@ -50,6 +50,12 @@ SIGNATURE_SHRINK = 0.5       # the motivating pattern must at least halve ...
 SIGNATURE_NOISE = 3.0        # ... or fall to this many noise variances
 DOMINANT_SHARE = 0.8         # ... or the candidate remove this share of all held-out structure
 STRUCTURE_FLOORS = 25.0      # residual MSE above this many noise variances is structure
+# After an effect, a further round only while some signal keeps this much structure, in noise variances:
+# the current's floor is its sensor's white noise, which the right model reaches, so what a candidate
+# must remove (MIN_GAIN_FLOORS) is worth a round; the angle's counts only quantisation and the clock,
+# which a model's own integration misses by a few noise variances (a drift of a count or two over a
+# recording, that a near-zero load torque then "explains"), so three.
+ROUND_FLOORS = {"theta": 3.0, "current": MIN_GAIN_FLOORS["current"]}
 NEAR_TIE = 2.0              # runner-up leaves at most twice the winner's held-out structure (+1 noise variance)
 MAX_EFFECTS = 3
 # A further round starts only if, at the last round's count, it ends within this many simulations (about
@@ -255,11 +261,10 @@ def swap_twins(ev: Evaluator, effects: tuple[Effect, ...],
 
 
 def worth_another_round(left: dict[str, float]) -> bool:
-    """Whether any signal keeps enough structure (MSE above its noise, in noise variances) for a
-    candidate to pass ``improvement_vs_noise``: the stop and the check use one threshold.  A
-    sensor offset of a noise sigma next to another effect is one noise variance in the current,
-    many sigmas over hundreds of samples; a stop at a few noise variances never tried it."""
-    return any(v >= MIN_GAIN_FLOORS[s] for s, v in left.items())
+    """Whether any signal keeps structure (MSE above its noise, in noise variances) worth another
+    round (``ROUND_FLOORS``).  A sensor offset of a noise sigma next to another effect is one noise
+    variance in the current, many sigmas over hundreds of samples."""
+    return any(v >= ROUND_FLOORS[s] for s, v in left.items())
 
 
 def select(meas: Measurement, names: tuple[str, ...] | None = None) -> Selection:
