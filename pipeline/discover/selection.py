@@ -14,7 +14,10 @@ A candidate is added only when all of these hold (issue 6, step 3):
 
 The best passing candidate (largest held-out likelihood gain) is added, all
 added parameters are refitted jointly, and the round repeats (stacked effects,
-at most ``MAX_EFFECTS``).  The verdict: ``none`` when nothing was added and the
+at most ``MAX_EFFECTS``, while some signal keeps structure a candidate could remove).
+Then each adopted effect is tried against the near-twins that also passed in its round,
+with the later effects beside them (``swap_twins``), and an effect the others made
+redundant is dropped (``prune``).  The verdict: ``none`` when nothing was added and the
 residual is at the noise floor; ``explained`` when effects were added and what
 is left is within ``STRUCTURE_FLOORS`` of it; ``unexplained`` when structure
 remains that no candidate removes (effects that passed every rule on the way
@@ -25,13 +28,12 @@ reported with both scores.
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from pipeline.discover.candidates import Evaluator, Fit, Scan, fit_candidate, folds_by_cycle, parameter_of, prune, scan
-from pipeline.discover.joint import effect_intervals, sensitivity
+from pipeline.discover.joint import effect_intervals, joint_fit, sensitivity
 from pipeline.discover.measurement import Measurement, ambiguous_switches, settle_switches
 from pipeline.discover.residuals import events, noise_floor, residuals
 from pipeline.model.effects import CATALOGUE, Effect
@@ -48,10 +50,18 @@ SIGNATURE_SHRINK = 0.5       # the motivating pattern must at least halve ...
 SIGNATURE_NOISE = 3.0        # ... or fall to this many noise variances
 DOMINANT_SHARE = 0.8         # ... or the candidate remove this share of all held-out structure
 STRUCTURE_FLOORS = 25.0      # residual MSE above this many noise variances is structure
-AT_NOISE_FLOORS = 3.0        # after an effect, stop when every signal is within this of its noise floor
+# After an effect, a further round only while some signal keeps this much structure, in noise variances:
+# the current's floor is its sensor's white noise, which the right model reaches, so what a candidate
+# must remove (MIN_GAIN_FLOORS) is worth a round; the angle's counts only quantisation and the clock,
+# which a model's own integration misses by a few noise variances (a drift of a count or two over a
+# recording, that a near-zero load torque then "explains"), so three.
+ROUND_FLOORS = {"theta": 3.0, "current": MIN_GAIN_FLOORS["current"]}
 NEAR_TIE = 2.0              # runner-up leaves at most twice the winner's held-out structure (+1 noise variance)
 MAX_EFFECTS = 3
-TIME_BUDGET_S = 8.0          # CPU s: a further round starts only if, at the last round's pace, it ends within this
+# A further round starts only if, at the last round's count, it ends within this many simulations (about
+# 8 CPU s at the ~5 ms a replay of up to 2000 samples costs here).  Counted in simulations, not seconds:
+# the same recording gets the same rounds, and so the same answer, on a busy machine as on an idle one.
+SIMULATION_BUDGET = 1600
 LATER_FULL_FITS = 3          # every candidate gets the full assessment in round 1; later rounds only the
                              # few that gain most in the coarse scan
 
@@ -214,7 +224,7 @@ class Selection:
     failures: list[str]                   # parameter sets the simulator refused (scored as infinitely bad)
     command_before: np.ndarray            # the command replayed for the base model ...
     command_after: np.ndarray             # ... and the final one (differ only in an inferred motor start)
-    stopped_for_time: bool                # a further round was not started (TIME_BUDGET_S)
+    stopped_for_time: bool                # a further round was not started (SIMULATION_BUDGET)
     pruned: list[str]                     # accepted in a round, dropped once later effects made them redundant
     intervals: list[tuple[float, float]]  # ~95 % interval of each final effect's parameter, all refitted jointly
     meas: Measurement                     # the measurement fitted (inferred switches settled)
@@ -222,6 +232,39 @@ class Selection:
 
 def excess(ev: Evaluator, effects: tuple[Effect, ...]) -> dict[str, float]:
     return {s: m / ev.floor[s] - 1.0 for s, m in ev.mse(ev.sim(effects)).items()}
+
+
+def swap_twins(ev: Evaluator, effects: tuple[Effect, ...],
+               rounds: list[list[Assessment | Screened]]) -> tuple[Effect, ...]:
+    """Each adopted effect against the candidates that also passed every check in its round, with
+    the effects adopted later now beside them: a round picks among near-twins (a softer spring and a
+    heavier rack both slow the oscillation) before the later effects are known, and the choice is
+    right only once they are.  A twin replaces the effect when, all refitted jointly, it fits every
+    sample better by half ``MAX_DELTA_BIC`` (equal parameter counts: the likelihoods compare)."""
+    nll = ev.nll(ev.sim(effects))
+    for rnd in rounds:
+        adopted = next((a.fit.name for a in rnd if a.accepted and a.fit.name in {e.name for e in effects}), None)
+        if adopted is None:
+            continue
+        for twin in (a for a in rnd if a.accepted and a.fit.name not in {e.name for e in effects}):
+            i = next(k for k, e in enumerate(effects) if e.name == adopted)
+            trial = joint_fit(ev, (*effects[:i], twin.fit.effect, *effects[i + 1:]))
+            trial_nll = ev.nll(ev.sim(trial))
+            if trial_nll < nll + 0.5 * MAX_DELTA_BIC:
+                effects, nll, adopted = trial, trial_nll, twin.fit.name
+                for _ in range(2):      # the partners had settled around the old twin: let them move on
+                    effects, before = joint_fit(ev, effects), nll
+                    nll = ev.nll(ev.sim(effects))
+                    if nll > before - 1.0:
+                        break
+    return effects
+
+
+def worth_another_round(left: dict[str, float]) -> bool:
+    """Whether any signal keeps structure (MSE above its noise, in noise variances) worth another
+    round (``ROUND_FLOORS``).  A sensor offset of a noise sigma next to another effect is one noise
+    variance in the current, many sigmas over hundreds of samples."""
+    return any(v >= ROUND_FLOORS[s] for s, v in left.items())
 
 
 def select(meas: Measurement, names: tuple[str, ...] | None = None) -> Selection:
@@ -237,14 +280,14 @@ def select(meas: Measurement, names: tuple[str, ...] | None = None) -> Selection
     effects: tuple[Effect, ...] = ()
     rounds: list[list[Assessment | Screened]] = []
     near_tie = None
-    started, last_round = time.process_time(), 0.0
+    last_round = 0
     stopped_for_time = False
     for round_ in range(1, MAX_EFFECTS + 1):
         remaining = [n for n in names if n not in {e.name for e in effects}]
-        if not remaining or (effects and max(excess(ev, effects).values()) < AT_NOISE_FLOORS):
+        if not remaining or (effects and not worth_another_round(excess(ev, effects))):
             break
-        round_start = time.process_time()
-        if round_ > 1 and round_start - started + last_round > TIME_BUDGET_S:
+        round_start = ev.simulations
+        if round_ > 1 and round_start + last_round > SIMULATION_BUDGET:
             stopped_for_time = True
             break
         nll_now = ev.nll(ev.sim(effects))
@@ -274,7 +317,8 @@ def select(meas: Measurement, names: tuple[str, ...] | None = None) -> Selection
                                              runner.fit.name: runner.fit.heldout_nll_gain},
                         "runner_up_accepted": bool(runner.accepted)}
         effects = best.fit.effects
-        last_round = time.process_time() - round_start
+        last_round = ev.simulations - round_start
+    effects = swap_twins(ev, effects, rounds)
     kept = prune(ev, effects)
     pruned = [e.name for e in effects if e.name not in {k.name for k in kept}]
     effects = kept

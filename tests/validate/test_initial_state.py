@@ -111,3 +111,22 @@ def test_validation_json_reports_the_estimated_start_with_its_uncertainty(tmp_pa
     assert np.all(np.abs(np.array(x0) - truth) <= np.array([3e-3, 0.02, 2e-5]))
     assert all(doc["sigma"][k] > 0 for k in ("current_a", "omega_rad_s", "delta_m"))
     assert doc["pre_log_commands"] == []
+
+
+@pytest.mark.parametrize("cut", [137, 170])
+def test_a_backlash_plant_opened_mid_motion_starts_where_the_rig_was(cut):
+    """Unit responses superposed through a dead zone miss, and inflate their own misfit weights;
+    the full simulation must be checked against the superposition sample by sample, at the noise."""
+    spec = CFG.plant_spec((make_effect("backlash", {"gap": 0.07}),))
+    kin, truth, _ = _opened_at(spec, cut, seed=4)
+    start = initial_state(kin, spec)
+    assert np.all(np.abs(np.array(start.x0) - truth) <= np.array([0.01, 0.1, 1e-4]))
+
+
+def test_a_constant_load_torque_is_not_superposed_once_per_unit_state():
+    """The load torque drives the plant even from rest with the motor off; the unit responses must not
+    each carry that forced response, or the superposed start is off by amperes."""
+    spec = CFG.plant_spec((make_effect("constant_load_torque", {"Tl": -1.7e-3}),))
+    kin, truth, _ = _opened_at(spec, 137, seed=5)
+    start = initial_state(kin, spec)
+    assert np.all(np.abs(np.array(start.x0) - truth) <= np.array([3e-3, 0.02, 2e-5]))
