@@ -144,7 +144,8 @@ def validate_run(paths: RunPaths, model_override: ModelOverride = None, *, rrd: 
     spec, source = resolve_model(cfg, model_override)
     t1 = time.perf_counter()
     try:
-        sims = simulate_both(spec, kin)
+        start = initial_state(kin, spec)
+        sims = simulate_both(spec, kin, start)
     except ValueError as err:
         raise PdrError(f"the model cannot be simulated: {err}", path=paths.root) from None
     t2 = time.perf_counter()
@@ -153,7 +154,7 @@ def validate_run(paths: RunPaths, model_override: ModelOverride = None, *, rrd: 
         "run": paths.name, "model": _model_json(spec, source),
         "n_samples": int(len(kin)), "duration_s": float(kin["t_s"].iloc[-1] - kin["t_s"].iloc[0]),
         "dir_inferred": bool(kin["dir_inferred"].any()) if "dir_inferred" in kin.columns else False,
-        "initial_state": initial_state(kin, spec).to_json(),
+        "initial_state": start.to_json(),
         **result,
     })
     t3 = time.perf_counter()
