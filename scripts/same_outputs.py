@@ -4,7 +4,7 @@ For changes that must not change any result (speed work): run ``pdr run`` on
 the same ``raw/`` with the old code and with the new one, into two folders,
 then ``python scripts/same_outputs.py OLD NEW``.  Every file must be present
 in both with the same bytes, except the stamps (which hold the code version)
-and the lock file; the ``.rrd`` recordings hold Rerun's write time and ids,
+and the lock file (a symbolic link must name the same target); the ``.rrd`` recordings hold Rerun's write time and ids,
 so they are compared by ``rerun rrd compare`` (same chunks, same data).
 Exit status 1 and one line per difference otherwise.
 """
@@ -28,6 +28,10 @@ def compared_files(root: Path, suffixes: set[str] | None = None) -> set[str]:
             and (p.suffix in suffixes if suffixes else p.suffix not in SKIPPED_SUFFIXES)}
 
 
+def _link_target(path: Path) -> str | None:
+    return str(path.readlink()) if path.is_symlink() else None
+
+
 def rrd_differs(a: Path, b: Path) -> bool:
     return subprocess.run([rerun_executable(), "rrd", "compare", str(a), str(b)], capture_output=True).returncode != 0
 
@@ -37,6 +41,7 @@ def differences(old: Path, new: Path) -> list[str]:
     a, b = compared_files(old), compared_files(new)
     out = [f"only in {old}: {name}" for name in sorted(a - b)] + [f"only in {new}: {name}" for name in sorted(b - a)]
     out += [f"differs: {name}" for name in sorted(a & b) if (old / name).read_bytes() != (new / name).read_bytes()]
+    out += [f"links elsewhere: {name}" for name in sorted(a & b) if _link_target(old / name) != _link_target(new / name)]
     ra, rb = compared_files(old, SKIPPED_SUFFIXES), compared_files(new, SKIPPED_SUFFIXES)
     out += [f"only in {old}: {name}" for name in sorted(ra - rb)] + [f"only in {new}: {name}" for name in sorted(rb - ra)]
     out += [f"differs (rerun rrd compare): {name}" for name in sorted(ra & rb) if rrd_differs(old / name, new / name)]

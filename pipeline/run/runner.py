@@ -141,7 +141,7 @@ def _execute(todo: list[tuple[Path, Stamp]], processed: Path, jobs: int, show_pr
         if jobs <= 1 or len(todo) <= 1:
             for chunk in chunks(todo, 1):
                 bar.update(task, description=chunk[0][0].name)
-                results.extend(process_chunk(chunk, processed))
+                results.extend(process_chunk(chunk, processed, dataset=True))
                 bar.advance(task, len(chunk))
             return results
         from concurrent.futures import as_completed
@@ -166,7 +166,8 @@ def _execute(todo: list[tuple[Path, Stamp]], processed: Path, jobs: int, show_pr
             for chunk in chunks(todo, jobs):
                 try:
                     futures[pool.submit(process_chunk, chunk, processed,
-                                        {c.name: ahead[c.name] for c, _s in chunk if c.name in ahead})] = chunk
+                                        {c.name: ahead[c.name] for c, _s in chunk if c.name in ahead},
+                                        True)] = chunk
                 except BrokenProcessPool:           # the pool died already (while starting): retried below
                     broken.extend(chunk)
             for fut in as_completed(futures):
@@ -243,6 +244,7 @@ def run_pipeline(raw: Path, processed: Path, *, jobs: int = 2, force: bool = Fal
         if todo or withdrawn or report.removed or not (processed / DATASET_DIR).is_dir():
             from pipeline.dataset import refresh_dataset
 
-            refresh_dataset(processed, changed={name for r in ran for name in r["runs"]})
+            # the workers added the runs of the recordings they did (in_dataset); the rest is done here
+            refresh_dataset(processed, changed={name for r in ran if not r.get("in_dataset") for name in r["runs"]})
     report.wall_s = time.perf_counter() - report.started
     return report

@@ -54,7 +54,8 @@ def process_recording(csv: Path, processed: Path, stamp) -> dict:
     return process_chunk([(csv, stamp)], processed)[0]
 
 
-def process_chunk(items: list, processed: Path, ingested: dict[str, dict] | None = None) -> list[dict]:
+def process_chunk(items: list, processed: Path, ingested: dict[str, dict] | None = None,
+                  dataset: bool = False) -> list[dict]:
     """All stages on a few recordings (``(csv, stamp)`` pairs) in one worker task; never raises.
 
     Every stage but the ``.rrd`` verification runs recording by recording;
@@ -62,13 +63,19 @@ def process_chunk(items: list, processed: Path, ingested: dict[str, dict] | None
     tool costs more than verifying a 500-sample file), and only the
     recordings whose files passed get their stamps.  A recording whose
     file fails is reported failed and its outputs withdrawn, like any other
-    failure, so a re-run does it again.
+    failure, so a re-run does it again.  ``dataset``: also add each
+    recording's runs to ``processed/dataset/`` (``in_dataset`` in its result
+    says it was done), synced with its outputs.
     """
     from pipeline.run.stamp import withdraw
     from pipeline.validate.rerun_log import verify_rrds
 
     with deferred_sync():       # one sync for the chunk's files, before any of their stamps
         done = [all_stages(csv, processed, (ingested or {}).get(csv.name)) for csv, _stamp in items]
+        if dataset:
+            for (_csv, stamp), (out, _old) in zip(items, done):
+                if out["status"] == "ok":
+                    _add_to_dataset(processed, stamp, out)
     rrds = [RunPaths(processed / name).rrd for out, _old in done if out["status"] == "ok" for name in out["runs"]]
     t0, c0 = time.perf_counter(), _child_cpu()
     try:
@@ -101,6 +108,21 @@ def process_chunk(items: list, processed: Path, ingested: dict[str, dict] | None
             withdraw(processed, sorted(set(old) | set(out["runs"])))
         results.append(out)
     return results
+
+
+def _add_to_dataset(processed: Path, stamp, out: dict) -> None:
+    """``dataset.add_runs`` for a recording done; on failure its entries are left to ``pdr run``'s end."""
+    from pipeline.dataset import add_runs
+
+    t0, c0 = time.perf_counter(), time.process_time()
+    try:
+        add_runs(processed, out["runs"], Path(stamp.raw_dir) / stamp.recording, stamp.raw_sha256)
+        out["in_dataset"] = True
+    except OSError:
+        pass
+    out["timing_s"]["dataset"] = time.perf_counter() - t0
+    out["cpu_stage_s"]["dataset"] = cpu = time.process_time() - c0
+    out["cpu_s"] += cpu
 
 
 def ingest_ahead(csv: Path, processed: Path, ingest: Callable[[], list[str]] | None = None) -> dict:
