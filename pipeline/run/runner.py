@@ -21,6 +21,7 @@ from __future__ import annotations
 import importlib
 import multiprocessing
 import os
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -148,7 +149,8 @@ def _execute(todo: list[tuple[Path, Stamp]], processed: Path, jobs: int, show_pr
         from concurrent.futures.process import BrokenProcessPool
 
         broken: list[tuple[Path, Stamp]] = []
-        with make_pool(min(jobs, len(todo)), method) as pool:
+        with tempfile.TemporaryDirectory(prefix="pdr-backgrounds-") as backgrounds, \
+                make_pool(min(jobs, len(todo)), method) as pool:
             # The first submit blocks until the workers have imported everything (~2 s on one core):
             # it waits in a thread while this one ingests.
             starting = threading.Thread(target=_start_pool, args=(pool,), daemon=True)
@@ -167,7 +169,7 @@ def _execute(todo: list[tuple[Path, Stamp]], processed: Path, jobs: int, show_pr
                 try:
                     futures[pool.submit(process_chunk, chunk, processed,
                                         {c.name: ahead[c.name] for c, _s in chunk if c.name in ahead},
-                                        True)] = chunk
+                                        dataset=True, backgrounds=Path(backgrounds))] = chunk
                 except BrokenProcessPool:           # the pool died already (while starting): retried below
                     broken.extend(chunk)
             for fut in as_completed(futures):

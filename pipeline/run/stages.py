@@ -55,7 +55,7 @@ def process_recording(csv: Path, processed: Path, stamp) -> dict:
 
 
 def process_chunk(items: list, processed: Path, ingested: dict[str, dict] | None = None,
-                  dataset: bool = False) -> list[dict]:
+                  dataset: bool = False, backgrounds: Path | None = None) -> list[dict]:
     """All stages on a few recordings (``(csv, stamp)`` pairs) in one worker task; never raises.
 
     Every stage but the ``.rrd`` verification runs recording by recording;
@@ -65,12 +65,14 @@ def process_chunk(items: list, processed: Path, ingested: dict[str, dict] | None
     file fails is reported failed and its outputs withdrawn, like any other
     failure, so a re-run does it again.  ``dataset``: also add each
     recording's runs to ``processed/dataset/`` (``in_dataset`` in its result
-    says it was done), synced with its outputs.
+    says it was done), synced with its outputs.  ``backgrounds``: a folder where the
+    workers of one run share the overview figures' backgrounds (``plots.shared_backgrounds``).
     """
     from pipeline.run.stamp import withdraw
+    from pipeline.validate.plots import shared_backgrounds
     from pipeline.validate.rerun_log import verify_rrds
 
-    with deferred_sync():       # one sync for the chunk's files, before any of their stamps
+    with deferred_sync(), shared_backgrounds(backgrounds):   # one sync for the chunk's files, before any stamp
         done = [all_stages(csv, processed, (ingested or {}).get(csv.name)) for csv, _stamp in items]
         if dataset:
             for (_csv, stamp), (out, _old) in zip(items, done):
