@@ -7,7 +7,7 @@ a ``forkserver`` that has already imported numpy, pandas, pyarrow, rerun and
 matplotlib, so a worker starts in milliseconds; elsewhere (Windows) they are
 spawned.  Either way that start takes ~2 s on one core; meanwhile this process
 ingests recordings from the end of the list (``ingest_ahead``), which the
-workers then skip.  A worker whose parent dies exits too (``_watch_parent``):
+workers then skip.  A worker whose parent dies exits too (``_init_worker``):
 a ``kill -9`` of ``pdr run`` leaves no process behind.
 
 One bad recording never stops the others: its error is reported, its stale
@@ -48,8 +48,19 @@ def start_method() -> str:
     return "forkserver" if "forkserver" in multiprocessing.get_all_start_methods() else "spawn"
 
 
-def _watch_parent() -> None:
-    """Worker initializer: exit as soon as the process that made the pool is gone (even by ``kill -9``)."""
+# A worker collects young objects every 10,000 net allocations of container objects instead of Python's
+# 700: a recording allocates many short-lived ones (pandas, matplotlib, rerun), and most of the
+# collections at 700 find nothing to free; the garbage left between them is a few MB at most
+# (docs/PERFORMANCE.md has the figures).
+WORKER_GC_THRESHOLD = (10_000, 10, 10)
+
+
+def _init_worker() -> None:
+    """Worker initializer: fewer garbage collections, and exit as soon as the process that made the
+    pool is gone (even by ``kill -9``)."""
+    import gc
+
+    gc.set_threshold(*WORKER_GC_THRESHOLD)
     parent = multiprocessing.parent_process()
     if parent is None:
         return
@@ -68,7 +79,7 @@ def make_pool(jobs: int, method: str | None = None):
     ctx = multiprocessing.get_context(method)
     if method == "forkserver":
         ctx.set_forkserver_preload(PRELOAD)
-    return ProcessPoolExecutor(max_workers=jobs, mp_context=ctx, initializer=_watch_parent)
+    return ProcessPoolExecutor(max_workers=jobs, mp_context=ctx, initializer=_init_worker)
 
 
 def _isolated(csv: Path, processed: Path, stamp: Stamp, method: str | None) -> dict:
