@@ -36,10 +36,8 @@ from pipeline.run.stages import ingest_ahead, process_chunk
 from pipeline.run.stamp import Stamp, code_version, previous_runs, prune_orphans, stamp_for, up_to_date, withdraw
 from pipeline.runs import SUMMARY_CSV
 
-# Imported once in the forkserver, inherited by every worker.
-PRELOAD = ["numpy", "pandas", "pyarrow.parquet", "rerun", "matplotlib.figure", "pipeline.run.stages",
-           "pipeline.ingest.stage", "pipeline.derive.stage", "pipeline.validate.stage",
-           "pipeline.validate.rerun_log", "pipeline.validate.warmup"]
+# Imported once in the forkserver, inherited by every worker (its docstring says what it holds).
+PRELOAD = ["pipeline.run.preload"]
 CHUNK_MAX = 4      # recordings per worker task: one verify call for 4 files instead of 4 starts of the tool
 
 
