@@ -32,7 +32,7 @@ from pipeline.io.atomic import deferred_sync, remove_stale_temporaries
 from pipeline.run.lock import processed_lock
 from pipeline.run.recordings import scan_raw
 from pipeline.run.report import RunReport
-from pipeline.run.stages import ingest_ahead, process_chunk
+from pipeline.run.stages import derive_ahead, ingest_ahead, process_chunk
 from pipeline.run.stamp import Stamp, code_version, previous_runs, prune_orphans, stamp_for, up_to_date, withdraw
 from pipeline.runs import SUMMARY_CSV
 
@@ -117,11 +117,12 @@ def _start_pool(pool) -> None:
 
 
 def _ingest_ahead(todo: list[tuple[Path, Stamp]], processed: Path, starting: threading.Thread) -> dict[str, dict]:
-    """Use the core that is idle while the workers start: ingest recordings from the end of the list.
+    """Use the core that is idle while the workers start: ingest recordings from the end of the list,
+    then, when every one is ingested and the workers are still starting, derive them in the same order.
 
     Stops as soon as the pool has started (``starting`` finished); the workers
-    then skip the ingest of what was done here.  The summary's pandas import
-    comes first (the ingest needs it too).
+    then skip the stages done here.  The summary's pandas import comes first
+    (the ingest needs it too).
     """
     importlib.import_module("pipeline.validate.summary")
     ahead: dict[str, dict] = {}
@@ -130,6 +131,11 @@ def _ingest_ahead(todo: list[tuple[Path, Stamp]], processed: Path, starting: thr
             if not starting.is_alive():
                 break
             ahead[csv.name] = ingest_ahead(csv, processed)
+        for csv, _stamp in reversed(todo):
+            if not starting.is_alive():
+                break
+            if ahead[csv.name]["error"] is None:
+                derive_ahead(ahead[csv.name], processed)
     return ahead
 
 
@@ -140,62 +146,73 @@ def _failed_ahead(csv: Path, processed: Path, info: dict) -> dict:
             "timing_s": {"ingest": info["wall_s"]}, "cpu_s": info["cpu_s"], "cpu_stage_s": {"ingest": info["cpu_s"]}}
 
 
-def _execute(todo: list[tuple[Path, Stamp]], processed: Path, jobs: int, show_progress: bool,
-             report: RunReport, method: str | None) -> list[dict]:
+def _progress(show: bool):
+    """The progress bar; rich is imported here, after the workers have started (~0.1 s of import)."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+    return Progress(TextColumn("[bold]pdr run"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                    TextColumn("{task.description}"), disable=not show, transient=False)
+
+
+def _execute(todo: list[tuple[Path, Stamp]], processed: Path, jobs: int, show_progress: bool,
+             report: RunReport, method: str | None) -> list[dict]:
     results: list[dict] = []
-    with Progress(TextColumn("[bold]pdr run"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                  TextColumn("{task.description}"), disable=not show_progress, transient=False) as bar:
-        task = bar.add_task("", total=len(todo))
-        if jobs <= 1 or len(todo) <= 1:
+    if jobs <= 1 or len(todo) <= 1:
+        with _progress(show_progress) as bar:
+            task = bar.add_task("", total=len(todo))
             for chunk in chunks(todo, 1):
                 bar.update(task, description=chunk[0][0].name)
                 results.extend(process_chunk(chunk, processed, dataset=True))
                 bar.advance(task, len(chunk))
-            return results
-        from concurrent.futures import as_completed
-        from concurrent.futures.process import BrokenProcessPool
+        return results
+    from concurrent.futures import as_completed
+    from concurrent.futures.process import BrokenProcessPool
 
-        broken: list[tuple[Path, Stamp]] = []
-        with tempfile.TemporaryDirectory(prefix="pdr-backgrounds-") as backgrounds, \
-                make_pool(min(jobs, len(todo)), method) as pool:
-            # The first submit blocks until the workers have imported everything (~2 s on one core):
-            # it waits in a thread while this one ingests.
-            starting = threading.Thread(target=_start_pool, args=(pool,), daemon=True)
-            starting.start()
-            ahead = _ingest_ahead(todo, processed, starting)
-            starting.join()
-            report.pool_ready_s, report.ingested_ahead = time.perf_counter() - report.started, len(ahead)
-            failed = {csv.name for csv, _stamp in todo if ahead.get(csv.name, {}).get("error")}
-            for csv, _stamp in todo:
-                if csv.name in failed:
-                    results.append(_failed_ahead(csv, processed, ahead.pop(csv.name)))
-                    bar.advance(task)
-            todo = [item for item in todo if item[0].name not in failed]
-            futures = {}
-            for chunk in chunks(todo, jobs):
-                try:
-                    futures[pool.submit(process_chunk, chunk, processed,
-                                        {c.name: ahead[c.name] for c, _s in chunk if c.name in ahead},
-                                        dataset=True, backgrounds=Path(backgrounds))] = chunk
-                except BrokenProcessPool:           # the pool died already (while starting): retried below
-                    broken.extend(chunk)
-            for fut in as_completed(futures):
-                chunk = futures[fut]
-                try:
-                    results.extend(fut.result())
-                except BrokenProcessPool:
-                    broken.extend(chunk)
-                    continue
-                bar.update(task, description=chunk[-1][0].name)
-                bar.advance(task, len(chunk))
-        # A worker that dies (e.g. a crash in a native library) takes every pending recording
-        # with it: retry those one by one, each in a fresh worker, so only the culprit fails.
-        for csv, stamp in sorted(broken, key=lambda item: item[0]):
-            bar.update(task, description=f"{csv.name} (retry)")
-            results.append(_isolated(csv, processed, stamp, method))
-            bar.advance(task)
+    broken: list[tuple[Path, Stamp]] = []
+    pool = make_pool(min(jobs, len(todo)), method)
+    # The first submit blocks until the workers have imported everything (~1.5 s on one core), which
+    # the whole run waits for: it is made first, and waits in a thread while this one ingests.
+    starting = threading.Thread(target=_start_pool, args=(pool,), daemon=True)
+    starting.start()
+    try:
+        with tempfile.TemporaryDirectory(prefix="pdr-backgrounds-") as backgrounds, _progress(show_progress) as bar:
+            task = bar.add_task("", total=len(todo))
+            with pool:
+                ahead = _ingest_ahead(todo, processed, starting)
+                starting.join()
+                report.pool_ready_s, report.ingested_ahead = time.perf_counter() - report.started, len(ahead)
+                report.derived_ahead = sum("derived" in info for info in ahead.values())
+                failed = {csv.name for csv, _stamp in todo if ahead.get(csv.name, {}).get("error")}
+                for csv, _stamp in todo:
+                    if csv.name in failed:
+                        results.append(_failed_ahead(csv, processed, ahead.pop(csv.name)))
+                        bar.advance(task)
+                todo = [item for item in todo if item[0].name not in failed]
+                futures = {}
+                for chunk in chunks(todo, jobs):
+                    try:
+                        futures[pool.submit(process_chunk, chunk, processed,
+                                            {c.name: ahead[c.name] for c, _s in chunk if c.name in ahead},
+                                            dataset=True, backgrounds=Path(backgrounds))] = chunk
+                    except BrokenProcessPool:           # the pool died already (while starting): retried below
+                        broken.extend(chunk)
+                for fut in as_completed(futures):
+                    chunk = futures[fut]
+                    try:
+                        results.extend(fut.result())
+                    except BrokenProcessPool:
+                        broken.extend(chunk)
+                        continue
+                    bar.update(task, description=chunk[-1][0].name)
+                    bar.advance(task, len(chunk))
+            # A worker that dies (e.g. a crash in a native library) takes every pending recording
+            # with it: retry those one by one, each in a fresh worker, so only the culprit fails.
+            for csv, stamp in sorted(broken, key=lambda item: item[0]):
+                bar.update(task, description=f"{csv.name} (retry)")
+                results.append(_isolated(csv, processed, stamp, method))
+                bar.advance(task)
+    finally:
+        pool.shutdown()         # closed already, unless something failed before its block
     return results
 
 

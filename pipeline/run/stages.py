@@ -146,10 +146,29 @@ def ingest_ahead(csv: Path, processed: Path, ingest: Callable[[], list[str]] | N
     return out
 
 
+def derive_ahead(info: dict, processed: Path) -> None:
+    """Derive the runs ``ingest_ahead`` made (``info``), still in ``pdr run``'s own process; never raises.
+
+    Adds ``derived`` (wall and CPU seconds) to ``info`` once every run is
+    derived; on a failure it adds nothing, and the worker derives the
+    recording again and reports what failed.
+    """
+    from pipeline.derive.stage import derive_and_write
+
+    t0, c0 = time.perf_counter(), time.process_time()
+    try:
+        for name in info["runs"]:
+            derive_and_write(RunPaths(processed / name))
+    except Exception:  # the worker meets it again, and says it
+        return
+    info["derived"] = {"wall_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0}
+
+
 def all_stages(csv: Path, processed: Path, ingested: dict | None = None) -> tuple[dict, list[str]]:
     """Ingest, derive and validate one recording (``.rrd`` not yet verified); the result and its previous runs.
 
-    ``ingested``: ``ingest_ahead``'s result when the recording was ingested before it got here.
+    ``ingested``: ``ingest_ahead``'s result when the recording was ingested before it got here
+    (with ``derived`` when ``derive_ahead`` derived it too: validate then reads derive's tables back).
     """
     from pipeline.derive.stage import derive_and_write
     from pipeline.ingest.stage import ingest_recording
@@ -173,16 +192,22 @@ def all_stages(csv: Path, processed: Path, ingested: dict | None = None) -> tupl
             runs = [RunPaths(processed / name) for name in ingested["runs"]]
             timing["ingest"], cpu["ingest"] = ingested["wall_s"], ingested["cpu_s"]
             cpu0 -= ingested["cpu_s"]
+        derived = (ingested or {}).get("derived")
+        if derived is not None:
+            timing["derive"], cpu["derive"] = derived["wall_s"], derived["cpu_s"]
+            cpu0 -= derived["cpu_s"]
         out["runs"] = [p.name for p in runs]
         for paths in runs:
             stage = "derive"
             t0, c0 = time.perf_counter(), time.process_time()
-            tables = derive_and_write(paths)
-            timing["derive"] += time.perf_counter() - t0
+            handed = None
+            if derived is None:
+                tables = derive_and_write(paths)
+                handed = {"kinematics": tables.kinematics, "phases": tables.phases, "overshoot": tables.overshoot}
+                timing["derive"] += time.perf_counter() - t0
             stage = "validate"
             c1 = time.process_time()
-            row = validate_run(paths, derived={"kinematics": tables.kinematics, "phases": tables.phases,
-                                               "overshoot": tables.overshoot}, verify=False)
+            row = validate_run(paths, derived=handed, verify=False)
             cpu["derive"] += c1 - c0
             cpu["validate"] += time.process_time() - c1
             for k, v in row.pop("timing_s").items():
