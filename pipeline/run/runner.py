@@ -21,9 +21,12 @@ from __future__ import annotations
 import importlib
 import multiprocessing
 import os
+import shutil
 import tempfile
 import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 from pipeline.dataset import DATASET_DIR
@@ -146,6 +149,21 @@ def _failed_ahead(csv: Path, processed: Path, info: dict) -> dict:
             "timing_s": {"ingest": info["wall_s"]}, "cpu_s": info["cpu_s"], "cpu_stage_s": {"ingest": info["cpu_s"]}}
 
 
+@contextmanager
+def _shared_folder() -> Iterator[Path | None]:
+    """A temporary folder the workers of this run share (the overview backgrounds), removed at the end;
+    None where none can be made (the workers then draw their own)."""
+    try:
+        folder = Path(tempfile.mkdtemp(prefix="pdr-shared-"))
+    except OSError:
+        yield None
+        return
+    try:
+        yield folder
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+
+
 def _progress(show: bool):
     """The progress bar; rich is imported here, after the workers have started (~0.1 s of import)."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
@@ -175,7 +193,7 @@ def _execute(todo: list[tuple[Path, Stamp]], processed: Path, jobs: int, show_pr
     starting = threading.Thread(target=_start_pool, args=(pool,), daemon=True)
     starting.start()
     try:
-        with tempfile.TemporaryDirectory(prefix="pdr-backgrounds-") as backgrounds, _progress(show_progress) as bar:
+        with _shared_folder() as backgrounds, _progress(show_progress) as bar:
             task = bar.add_task("", total=len(todo))
             with pool:
                 ahead = _ingest_ahead(todo, processed, starting)
@@ -193,7 +211,7 @@ def _execute(todo: list[tuple[Path, Stamp]], processed: Path, jobs: int, show_pr
                     try:
                         futures[pool.submit(process_chunk, chunk, processed,
                                             {c.name: ahead[c.name] for c, _s in chunk if c.name in ahead},
-                                            dataset=True, backgrounds=Path(backgrounds))] = chunk
+                                            dataset=True, backgrounds=backgrounds)] = chunk
                     except BrokenProcessPool:           # the pool died already (while starting): retried below
                         broken.extend(chunk)
                 for fut in as_completed(futures):

@@ -47,3 +47,19 @@ def test_a_derive_that_fails_ahead_is_done_again_by_the_worker_which_reports_it(
     [result] = process_chunk([(csv, stamp_for(csv, CODE))], processed, {csv.name: info})
     assert result["status"] == "failed" and result["error"].startswith("derive: ")
     assert "signals.parquet" in result["error"]
+
+
+def test_the_workers_shared_folder_is_removed_after_and_optional(monkeypatch):
+    import tempfile
+
+    from pipeline.run.runner import _shared_folder
+
+    with _shared_folder() as folder:
+        (folder / "background.rgba").write_bytes(b"x")
+    assert not folder.exists()
+
+    def full(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+    monkeypatch.setattr(tempfile, "mkdtemp", full)
+    with _shared_folder() as folder:                      # the workers then draw their own backgrounds
+        assert folder is None
