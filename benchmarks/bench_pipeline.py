@@ -103,7 +103,8 @@ def main(n: int = N_RECORDINGS) -> None:
         overhead = 2 * report.wall_s - total
         print(f"    {'pool/idle':<13} {overhead:7.2f} s  (2 x wall - worker time: start-up, imports, waiting)")
         print(f"  workers ready {report.pool_ready_s:.2f} s after the start (forkserver imports and warm-up, one core); "
-              f"meanwhile pdr run ingested {report.ingested_ahead} recordings on the other")
+              f"meanwhile pdr run ingested {report.ingested_ahead} recordings on the other "
+              f"and derived {report.derived_ahead} of them")
         print("  CPU per recording by stage (process time of the worker; rrd_verify: the rerun child processes):")
         stage_cpu = report.stage_cpu_seconds()
         for k, v in stage_cpu.items():

@@ -50,15 +50,19 @@ def _link(link: Path, target: str) -> None:
 
 def _runs_row(run_dir: Path):
     """The ``runs`` table's row for one run, from its stamp; None when the raw file is not readable here."""
+    stamp = json.loads((run_dir / "stamp.json").read_text(encoding="utf-8"))
+    return _row(Path(stamp["raw_dir"]) / stamp["recording"], stamp["raw_sha256"])
+
+
+def _row(raw: Path, raw_sha256: str):
+    """The ``runs`` table's row of a recording's runs; None when the raw file is not readable here."""
     import pyarrow as pa
 
-    stamp = json.loads((run_dir / "stamp.json").read_text(encoding="utf-8"))
-    raw = Path(stamp["raw_dir"]) / stamp["recording"]
     try:
         mtime_ms = int(raw.stat().st_mtime * 1000)
     except OSError:
         return None
-    return pa.table({"recording": [stamp["recording"]], "raw_sha256": [stamp["raw_sha256"]],
+    return pa.table({"recording": [raw.name], "raw_sha256": [raw_sha256],
                      "recorded": pa.array([mtime_ms], pa.timestamp("ms", tz="UTC"))})
 
 
@@ -75,6 +79,29 @@ def _write_if_changed(target: Path, table) -> None:
         write_bytes(target, data)
 
 
+def _table_links(processed: Path, run: str) -> None:
+    root = processed / DATASET_DIR
+    for table in TABLES:
+        if (processed / run / f"{table}.parquet").is_file():
+            _link(root / table / f"run={run}" / PART, f"../../../{run}/{table}.parquet")
+
+
+def add_runs(processed: Path, runs: list[str], raw: Path, raw_sha256: str) -> None:
+    """The entries of runs just made from the raw file ``raw``: their tables' links and ``runs`` rows.
+
+    ``pdr run``'s workers call this as each recording is done, before its
+    stamps, so the file-system work is spread over the run instead of
+    left to its end; ``refresh_dataset`` then finds them in place (it still
+    removes the entries of runs that end up without a stamp).
+    """
+    processed = Path(processed)
+    row = _row(Path(raw), raw_sha256)
+    for run in runs:
+        _table_links(processed, run)
+        if row is not None:
+            _write_if_changed(processed / DATASET_DIR / RUNS_TABLE / f"run={run}" / PART, row)
+
+
 def refresh_dataset(processed: Path, changed: set[str] | None = None) -> list[str]:
     """Bring ``processed/dataset/`` in line with the complete runs; returns them.
 
@@ -84,10 +111,8 @@ def refresh_dataset(processed: Path, changed: set[str] | None = None) -> list[st
     processed = Path(processed)
     root = processed / DATASET_DIR
     runs = complete_runs(processed)
-    for table in TABLES:
-        for run in runs:
-            if (processed / run / f"{table}.parquet").is_file():
-                _link(root / table / f"run={run}" / PART, f"../../../{run}/{table}.parquet")
+    for run in runs:
+        _table_links(processed, run)
     for run in runs:
         target = root / RUNS_TABLE / f"run={run}" / PART
         if changed is not None and run not in changed and target.is_file():

@@ -82,3 +82,37 @@ def test_a_removed_recording_leaves_the_dataset(processed, tmp_path):
     shutil.rmtree(out / DATASET_DIR)                  # a lost view comes back on the next run
     run_pipeline(raw, out, jobs=1, code=CODE)
     assert (out / DATASET_DIR / "runs" / "run=r000" / PART).read_bytes() == first
+
+
+def test_the_entries_the_workers_add_are_the_ones_a_refresh_makes(processed, tmp_path):
+    import shutil
+
+    from pipeline.dataset import refresh_dataset
+
+    copy = tmp_path / "processed"
+    shutil.copytree(processed, copy, symlinks=True)
+    shutil.rmtree(copy / DATASET_DIR)
+    refresh_dataset(copy)                              # every entry from the stamps, none from a worker
+    made = sorted(p.relative_to(copy / DATASET_DIR) for p in (copy / DATASET_DIR).rglob("*.parquet"))
+    assert made == sorted(p.relative_to(processed / DATASET_DIR) for p in (processed / DATASET_DIR).rglob("*.parquet"))
+    assert len(made) == 3 * (len(TABLES) + 1)
+    for rel in made:
+        a, b = processed / DATASET_DIR / rel, copy / DATASET_DIR / rel
+        assert a.is_symlink() == b.is_symlink() and a.read_bytes() == b.read_bytes()
+        if a.is_symlink():
+            assert os.readlink(a) == os.readlink(b)
+
+
+def test_a_recording_that_fails_after_its_entries_were_added_leaves_the_dataset(tmp_path, monkeypatch):
+    from pipeline.validate import rerun_log
+
+    raw = tmp_path / "raw"
+    make_raw(raw, 2)
+    monkeypatch.setattr(rerun_log, "verify_rrds",      # r001's recording fails its check, after the stages ran
+                        lambda paths: {p: "rerun rrd verify failed: test" for p in paths if p.parent.name == "r001"})
+    out = tmp_path / "processed"
+    report = run_pipeline(raw, out, jobs=1, code=CODE)
+    assert [r["recording"] for r in report.failed] == ["r001.csv"]
+    assert [r.get("in_dataset") for r in report.ran] == [True, True]      # both were added, then r001 failed
+    for table in (*TABLES, "runs"):
+        assert sorted(p.name for p in (out / DATASET_DIR / table).iterdir()) == ["run=r000"]

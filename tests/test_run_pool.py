@@ -27,3 +27,20 @@ def test_the_pool_under_spawn_gives_the_single_process_outputs(workspace):
     assert spawned.pool_ready_s is not None         # the pool was used, not the in-process path
     for seed in (0, 1):
         workspace.assert_as_alone(processed, seed)
+
+
+def _worker_state() -> tuple:
+    import gc
+    import sys
+    return gc.isenabled(), gc.get_threshold(), "pipeline.validate.warmup" in sys.modules, gc.get_freeze_count()
+
+
+@pytest.mark.skipif(start_method() != "forkserver", reason="the preload is the forkserver's")
+def test_a_worker_starts_preloaded_with_its_garbage_collector_on():
+    """The forkserver imports everything with the collector paused (``pipeline.run.preload``); a worker
+    must not inherit it paused, and collects young objects at its own threshold."""
+    from pipeline.run.runner import WORKER_GC_THRESHOLD, make_pool
+
+    with make_pool(1) as pool:
+        enabled, threshold, warmed, frozen = pool.submit(_worker_state).result()
+    assert enabled and threshold == WORKER_GC_THRESHOLD and warmed and frozen > 100_000

@@ -38,6 +38,7 @@ CHUNK_BYTES = 1 << 20          # uncompressed chunk size, as mcap.writer.Writer'
 BUILDERS = 2                   # threads building chunks while this one writes them in order
 LOOKAHEAD = 4                  # chunks built ahead of the writer: bounds the JSON held in memory
 LIBRARY = "pdr ingest (mcap_bulk)"
+PROBE_ROWS = 1024             # rows whose records size the blocks (a file of no more rows is one block)
 JOIN_KERNEL_MIN_ROWS = 200_000  # from here on records are glued by records_kernel (numba) instead of Arrow
 _MSG_HEADER = np.dtype([("op", "u1"), ("len", "<u8"), ("channel", "<u2"), ("seq", "<u4"),
                         ("log_time", "<u8"), ("publish_time", "<u8")])        # 31 bytes, packed
@@ -106,10 +107,12 @@ class _ChunkData:
     message_offsets: np.ndarray          # of each message in the uncompressed chunk content
 
 
-def _chunk(fields: dict[str, np.ndarray], channel_id: int, log_time: np.ndarray, compiled: bool) -> _ChunkData:
+def _chunk(fields: dict[str, np.ndarray], channel_id: int, log_time: np.ndarray, compiled: bool,
+           recs: pa.Array | None = None) -> _ChunkData:
     """One channel's messages of one block of samples as a compressed chunk (Arrow, the compiled join,
-    lz4 and crc32 release the GIL, so blocks are built on two threads)."""
-    recs = _records(fields, channel_id, log_time, compiled)
+    lz4 and crc32 release the GIL, so blocks are built on two threads).  ``recs``: the block's
+    records when they are already built."""
+    recs = _records(fields, channel_id, log_time, compiled) if recs is None else recs
     off = np.frombuffer(recs.buffers()[1], dtype=np.int32, count=len(recs) + 1).astype(np.int64)
     raw = memoryview(recs.buffers()[2])[off[0]:off[-1]]
     chunk = Chunk(compression="lz4", data=lz4.frame.compress(raw), message_start_time=int(log_time.min()),
@@ -155,18 +158,17 @@ def write_mcap(out: IO[bytes], channels: list[ChannelBatch], log_time_ns: np.nda
     # Blocks of samples sized so the widest channel's chunk is about chunk_bytes; within a block, one
     # chunk per channel (chunks of different channels overlap in time, which readers merge).  Only one
     # block's JSON is in memory at a time, so peak memory does not grow with the recording.
-    sample = slice(0, min(n, 1024))
-    widest = max((pc.sum(pc.binary_length(_records({k: v[sample] for k, v in ch.fields.items()}, 1,
-                                                   log_time_ns[sample]))).as_py() / max(1, sample.stop)
-                  for ch in channels), default=1.0)
+    sample = slice(0, min(n, PROBE_ROWS))
+    probes = [_records({k: v[sample] for k, v in ch.fields.items()}, cid, log_time_ns[sample])
+              for cid, ch in enumerate(channels, start=1)]
+    widest = max((pc.sum(pc.binary_length(recs)).as_py() / max(1, sample.stop) for recs in probes), default=1.0)
     per_block = max(1, int(chunk_bytes // widest))
     compiled = n >= JOIN_KERNEL_MIN_ROWS
     if compiled:
         import pipeline.ingest.records_kernel  # noqa: F401  (imported here, not by two builder threads at once)
     chunk_indexes = []
 
-    def write_chunk(cid: int, t: np.ndarray, job) -> None:
-        built: _ChunkData = job.result()
+    def write_chunk(cid: int, t: np.ndarray, built: _ChunkData) -> None:
         chunk = built.chunk
         chunk_start = pos
         chunk.write(b)
@@ -180,17 +182,25 @@ def write_mcap(out: IO[bytes], channels: list[ChannelBatch], log_time_ns: np.nda
             message_index_length=pos - index_start, compression="lz4", compressed_size=len(chunk.data),
             uncompressed_size=chunk.uncompressed_size))
 
-    with ThreadPoolExecutor(max_workers=BUILDERS) as pool:
-        pending: deque = deque()
-        for a in range(0, n, per_block):
-            t = log_time_ns[a:a + per_block]
-            for cid, ch in enumerate(channels, start=1):
-                fields = {name: v[a:a + per_block] for name, v in ch.fields.items()}
-                pending.append((cid, t, pool.submit(_chunk, fields, cid, t, compiled)))
-                if len(pending) > LOOKAHEAD:
-                    write_chunk(*pending.popleft())
-        while pending:
-            write_chunk(*pending.popleft())
+    if 0 < n <= min(per_block, PROBE_ROWS):
+        # One block, and the probe built all of it: those are its records (the same bytes).  Its few
+        # small chunks are built here: starting the builder threads would cost more than building them.
+        for cid, (ch, recs) in enumerate(zip(channels, probes), start=1):
+            write_chunk(cid, log_time_ns, _chunk(ch.fields, cid, log_time_ns, compiled, recs))
+    else:
+        with ThreadPoolExecutor(max_workers=BUILDERS) as pool:
+            pending: deque = deque()
+            for a in range(0, n, per_block):
+                t = log_time_ns[a:a + per_block]
+                for cid, ch in enumerate(channels, start=1):
+                    fields = {name: v[a:a + per_block] for name, v in ch.fields.items()}
+                    pending.append((cid, t, pool.submit(_chunk, fields, cid, t, compiled)))
+                    if len(pending) > LOOKAHEAD:
+                        cid_, t_, job = pending.popleft()
+                        write_chunk(cid_, t_, job.result())
+            while pending:
+                cid_, t_, job = pending.popleft()
+                write_chunk(cid_, t_, job.result())
 
     metadata_indexes = []
     for name in sorted(metadata):

@@ -17,6 +17,7 @@ class RunReport:
     wall_s: float = 0.0
     pool_ready_s: float | None = None      # when the first worker could take a recording (from the run's start)
     ingested_ahead: int = 0                # recordings this process ingested meanwhile
+    derived_ahead: int = 0                 # ... and derived too
     started: float = 0.0                   # perf_counter at the run's start
     notes: list[str] = field(default_factory=list)   # what else happened (on a cluster: workers lost, re-runs)
 

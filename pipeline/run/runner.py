@@ -7,7 +7,7 @@ a ``forkserver`` that has already imported numpy, pandas, pyarrow, rerun and
 matplotlib, so a worker starts in milliseconds; elsewhere (Windows) they are
 spawned.  Either way that start takes ~2 s on one core; meanwhile this process
 ingests recordings from the end of the list (``ingest_ahead``), which the
-workers then skip.  A worker whose parent dies exits too (``_watch_parent``):
+workers then skip.  A worker whose parent dies exits too (``_init_worker``):
 a ``kill -9`` of ``pdr run`` leaves no process behind.
 
 One bad recording never stops the others: its error is reported, its stale
@@ -21,8 +21,12 @@ from __future__ import annotations
 import importlib
 import multiprocessing
 import os
+import shutil
+import tempfile
 import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 from pipeline.dataset import DATASET_DIR
@@ -31,14 +35,12 @@ from pipeline.io.atomic import deferred_sync, remove_stale_temporaries
 from pipeline.run.lock import processed_lock
 from pipeline.run.recordings import scan_raw
 from pipeline.run.report import RunReport
-from pipeline.run.stages import ingest_ahead, process_chunk
+from pipeline.run.stages import derive_ahead, ingest_ahead, process_chunk
 from pipeline.run.stamp import Stamp, code_version, previous_runs, prune_orphans, stamp_for, up_to_date, withdraw
 from pipeline.runs import SUMMARY_CSV
 
-# Imported once in the forkserver, inherited by every worker.
-PRELOAD = ["numpy", "pandas", "pyarrow.parquet", "rerun", "matplotlib.figure", "pipeline.run.stages",
-           "pipeline.ingest.stage", "pipeline.derive.stage", "pipeline.validate.stage",
-           "pipeline.validate.rerun_log", "pipeline.validate.warmup"]
+# Imported once in the forkserver, inherited by every worker (its docstring says what it holds).
+PRELOAD = ["pipeline.run.preload"]
 CHUNK_MAX = 4      # recordings per worker task: one verify call for 4 files instead of 4 starts of the tool
 
 
@@ -47,8 +49,19 @@ def start_method() -> str:
     return "forkserver" if "forkserver" in multiprocessing.get_all_start_methods() else "spawn"
 
 
-def _watch_parent() -> None:
-    """Worker initializer: exit as soon as the process that made the pool is gone (even by ``kill -9``)."""
+# A worker collects young objects every 10,000 net allocations of container objects instead of Python's
+# 700: a recording allocates many short-lived ones (pandas, matplotlib, rerun), and most of the
+# collections at 700 find nothing to free; the garbage left between them is a few MB at most
+# (docs/PERFORMANCE.md has the figures).
+WORKER_GC_THRESHOLD = (10_000, 10, 10)
+
+
+def _init_worker() -> None:
+    """Worker initializer: fewer garbage collections, and exit as soon as the process that made the
+    pool is gone (even by ``kill -9``)."""
+    import gc
+
+    gc.set_threshold(*WORKER_GC_THRESHOLD)
     parent = multiprocessing.parent_process()
     if parent is None:
         return
@@ -67,7 +80,7 @@ def make_pool(jobs: int, method: str | None = None):
     ctx = multiprocessing.get_context(method)
     if method == "forkserver":
         ctx.set_forkserver_preload(PRELOAD)
-    return ProcessPoolExecutor(max_workers=jobs, mp_context=ctx, initializer=_watch_parent)
+    return ProcessPoolExecutor(max_workers=jobs, mp_context=ctx, initializer=_init_worker)
 
 
 def _isolated(csv: Path, processed: Path, stamp: Stamp, method: str | None) -> dict:
@@ -107,11 +120,12 @@ def _start_pool(pool) -> None:
 
 
 def _ingest_ahead(todo: list[tuple[Path, Stamp]], processed: Path, starting: threading.Thread) -> dict[str, dict]:
-    """Use the core that is idle while the workers start: ingest recordings from the end of the list.
+    """Use the core that is idle while the workers start: ingest recordings from the end of the list,
+    then, when every one is ingested and the workers are still starting, derive them in the same order.
 
     Stops as soon as the pool has started (``starting`` finished); the workers
-    then skip the ingest of what was done here.  The summary's pandas import
-    comes first (the ingest needs it too).
+    then skip the stages done here.  The summary's pandas import comes first
+    (the ingest needs it too).
     """
     importlib.import_module("pipeline.validate.summary")
     ahead: dict[str, dict] = {}
@@ -120,6 +134,11 @@ def _ingest_ahead(todo: list[tuple[Path, Stamp]], processed: Path, starting: thr
             if not starting.is_alive():
                 break
             ahead[csv.name] = ingest_ahead(csv, processed)
+        for csv, _stamp in reversed(todo):
+            if not starting.is_alive():
+                break
+            if ahead[csv.name]["error"] is None:
+                derive_ahead(ahead[csv.name], processed)
     return ahead
 
 
@@ -130,60 +149,88 @@ def _failed_ahead(csv: Path, processed: Path, info: dict) -> dict:
             "timing_s": {"ingest": info["wall_s"]}, "cpu_s": info["cpu_s"], "cpu_stage_s": {"ingest": info["cpu_s"]}}
 
 
-def _execute(todo: list[tuple[Path, Stamp]], processed: Path, jobs: int, show_progress: bool,
-             report: RunReport, method: str | None) -> list[dict]:
+@contextmanager
+def _shared_folder() -> Iterator[Path | None]:
+    """A temporary folder the workers of this run share (the overview backgrounds), removed at the end;
+    None where none can be made (the workers then draw their own)."""
+    try:
+        folder = Path(tempfile.mkdtemp(prefix="pdr-shared-"))
+    except OSError:
+        yield None
+        return
+    try:
+        yield folder
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+def _progress(show: bool):
+    """The progress bar; rich is imported here, after the workers have started (~0.1 s of import)."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+    return Progress(TextColumn("[bold]pdr run"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                    TextColumn("{task.description}"), disable=not show, transient=False)
+
+
+def _execute(todo: list[tuple[Path, Stamp]], processed: Path, jobs: int, show_progress: bool,
+             report: RunReport, method: str | None) -> list[dict]:
     results: list[dict] = []
-    with Progress(TextColumn("[bold]pdr run"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                  TextColumn("{task.description}"), disable=not show_progress, transient=False) as bar:
-        task = bar.add_task("", total=len(todo))
-        if jobs <= 1 or len(todo) <= 1:
+    if jobs <= 1 or len(todo) <= 1:
+        with _progress(show_progress) as bar:
+            task = bar.add_task("", total=len(todo))
             for chunk in chunks(todo, 1):
                 bar.update(task, description=chunk[0][0].name)
-                results.extend(process_chunk(chunk, processed))
+                results.extend(process_chunk(chunk, processed, dataset=True))
                 bar.advance(task, len(chunk))
-            return results
-        from concurrent.futures import as_completed
-        from concurrent.futures.process import BrokenProcessPool
+        return results
+    from concurrent.futures import as_completed
+    from concurrent.futures.process import BrokenProcessPool
 
-        broken: list[tuple[Path, Stamp]] = []
-        with make_pool(min(jobs, len(todo)), method) as pool:
-            # The first submit blocks until the workers have imported everything (~2 s on one core):
-            # it waits in a thread while this one ingests.
-            starting = threading.Thread(target=_start_pool, args=(pool,), daemon=True)
-            starting.start()
-            ahead = _ingest_ahead(todo, processed, starting)
-            starting.join()
-            report.pool_ready_s, report.ingested_ahead = time.perf_counter() - report.started, len(ahead)
-            failed = {csv.name for csv, _stamp in todo if ahead.get(csv.name, {}).get("error")}
-            for csv, _stamp in todo:
-                if csv.name in failed:
-                    results.append(_failed_ahead(csv, processed, ahead.pop(csv.name)))
-                    bar.advance(task)
-            todo = [item for item in todo if item[0].name not in failed]
-            futures = {}
-            for chunk in chunks(todo, jobs):
-                try:
-                    futures[pool.submit(process_chunk, chunk, processed,
-                                        {c.name: ahead[c.name] for c, _s in chunk if c.name in ahead})] = chunk
-                except BrokenProcessPool:           # the pool died already (while starting): retried below
-                    broken.extend(chunk)
-            for fut in as_completed(futures):
-                chunk = futures[fut]
-                try:
-                    results.extend(fut.result())
-                except BrokenProcessPool:
-                    broken.extend(chunk)
-                    continue
-                bar.update(task, description=chunk[-1][0].name)
-                bar.advance(task, len(chunk))
-        # A worker that dies (e.g. a crash in a native library) takes every pending recording
-        # with it: retry those one by one, each in a fresh worker, so only the culprit fails.
-        for csv, stamp in sorted(broken, key=lambda item: item[0]):
-            bar.update(task, description=f"{csv.name} (retry)")
-            results.append(_isolated(csv, processed, stamp, method))
-            bar.advance(task)
+    broken: list[tuple[Path, Stamp]] = []
+    pool = make_pool(min(jobs, len(todo)), method)
+    # The first submit blocks until the workers have imported everything (~1.5 s on one core), which
+    # the whole run waits for: it is made first, and waits in a thread while this one ingests.
+    starting = threading.Thread(target=_start_pool, args=(pool,), daemon=True)
+    starting.start()
+    try:
+        with _shared_folder() as backgrounds, _progress(show_progress) as bar:
+            task = bar.add_task("", total=len(todo))
+            with pool:
+                ahead = _ingest_ahead(todo, processed, starting)
+                starting.join()
+                report.pool_ready_s, report.ingested_ahead = time.perf_counter() - report.started, len(ahead)
+                report.derived_ahead = sum("derived" in info for info in ahead.values())
+                failed = {csv.name for csv, _stamp in todo if ahead.get(csv.name, {}).get("error")}
+                for csv, _stamp in todo:
+                    if csv.name in failed:
+                        results.append(_failed_ahead(csv, processed, ahead.pop(csv.name)))
+                        bar.advance(task)
+                todo = [item for item in todo if item[0].name not in failed]
+                futures = {}
+                for chunk in chunks(todo, jobs):
+                    try:
+                        futures[pool.submit(process_chunk, chunk, processed,
+                                            {c.name: ahead[c.name] for c, _s in chunk if c.name in ahead},
+                                            dataset=True, backgrounds=backgrounds)] = chunk
+                    except BrokenProcessPool:           # the pool died already (while starting): retried below
+                        broken.extend(chunk)
+                for fut in as_completed(futures):
+                    chunk = futures[fut]
+                    try:
+                        results.extend(fut.result())
+                    except BrokenProcessPool:
+                        broken.extend(chunk)
+                        continue
+                    bar.update(task, description=chunk[-1][0].name)
+                    bar.advance(task, len(chunk))
+            # A worker that dies (e.g. a crash in a native library) takes every pending recording
+            # with it: retry those one by one, each in a fresh worker, so only the culprit fails.
+            for csv, stamp in sorted(broken, key=lambda item: item[0]):
+                bar.update(task, description=f"{csv.name} (retry)")
+                results.append(_isolated(csv, processed, stamp, method))
+                bar.advance(task)
+    finally:
+        pool.shutdown()         # closed already, unless something failed before its block
     return results
 
 
@@ -243,6 +290,7 @@ def run_pipeline(raw: Path, processed: Path, *, jobs: int = 2, force: bool = Fal
         if todo or withdrawn or report.removed or not (processed / DATASET_DIR).is_dir():
             from pipeline.dataset import refresh_dataset
 
-            refresh_dataset(processed, changed={name for r in ran for name in r["runs"]})
+            # the workers added the runs of the recordings they did (in_dataset); the rest is done here
+            refresh_dataset(processed, changed={name for r in ran if not r.get("in_dataset") for name in r["runs"]})
     report.wall_s = time.perf_counter() - report.started
     return report

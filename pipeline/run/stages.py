@@ -54,7 +54,8 @@ def process_recording(csv: Path, processed: Path, stamp) -> dict:
     return process_chunk([(csv, stamp)], processed)[0]
 
 
-def process_chunk(items: list, processed: Path, ingested: dict[str, dict] | None = None) -> list[dict]:
+def process_chunk(items: list, processed: Path, ingested: dict[str, dict] | None = None,
+                  dataset: bool = False, backgrounds: Path | None = None) -> list[dict]:
     """All stages on a few recordings (``(csv, stamp)`` pairs) in one worker task; never raises.
 
     Every stage but the ``.rrd`` verification runs recording by recording;
@@ -62,13 +63,21 @@ def process_chunk(items: list, processed: Path, ingested: dict[str, dict] | None
     tool costs more than verifying a 500-sample file), and only the
     recordings whose files passed get their stamps.  A recording whose
     file fails is reported failed and its outputs withdrawn, like any other
-    failure, so a re-run does it again.
+    failure, so a re-run does it again.  ``dataset``: also add each
+    recording's runs to ``processed/dataset/`` (``in_dataset`` in its result
+    says it was done), synced with its outputs.  ``backgrounds``: a folder where the
+    workers of one run share the overview figures' backgrounds (``plots.shared_backgrounds``).
     """
     from pipeline.run.stamp import withdraw
+    from pipeline.validate.plots import shared_backgrounds
     from pipeline.validate.rerun_log import verify_rrds
 
-    with deferred_sync():       # one sync for the chunk's files, before any of their stamps
+    with deferred_sync(), shared_backgrounds(backgrounds):   # one sync for the chunk's files, before any stamp
         done = [all_stages(csv, processed, (ingested or {}).get(csv.name)) for csv, _stamp in items]
+        if dataset:
+            for (_csv, stamp), (out, _old) in zip(items, done):
+                if out["status"] == "ok":
+                    _add_to_dataset(processed, stamp, out)
     rrds = [RunPaths(processed / name).rrd for out, _old in done if out["status"] == "ok" for name in out["runs"]]
     t0, c0 = time.perf_counter(), _child_cpu()
     try:
@@ -103,6 +112,21 @@ def process_chunk(items: list, processed: Path, ingested: dict[str, dict] | None
     return results
 
 
+def _add_to_dataset(processed: Path, stamp, out: dict) -> None:
+    """``dataset.add_runs`` for a recording done; on failure its entries are left to ``pdr run``'s end."""
+    from pipeline.dataset import add_runs
+
+    t0, c0 = time.perf_counter(), time.process_time()
+    try:
+        add_runs(processed, out["runs"], Path(stamp.raw_dir) / stamp.recording, stamp.raw_sha256)
+        out["in_dataset"] = True
+    except OSError:
+        pass
+    out["timing_s"]["dataset"] = time.perf_counter() - t0
+    out["cpu_stage_s"]["dataset"] = cpu = time.process_time() - c0
+    out["cpu_s"] += cpu
+
+
 def ingest_ahead(csv: Path, processed: Path, ingest: Callable[[], list[str]] | None = None) -> dict:
     """Ingest one recording in ``pdr run``'s own process while the workers start; never raises.
 
@@ -122,10 +146,29 @@ def ingest_ahead(csv: Path, processed: Path, ingest: Callable[[], list[str]] | N
     return out
 
 
+def derive_ahead(info: dict, processed: Path) -> None:
+    """Derive the runs ``ingest_ahead`` made (``info``), still in ``pdr run``'s own process; never raises.
+
+    Adds ``derived`` (wall and CPU seconds) to ``info`` once every run is
+    derived; on a failure it adds nothing, and the worker derives the
+    recording again and reports what failed.
+    """
+    from pipeline.derive.stage import derive_and_write
+
+    t0, c0 = time.perf_counter(), time.process_time()
+    try:
+        for name in info["runs"]:
+            derive_and_write(RunPaths(processed / name))
+    except Exception:  # the worker meets it again, and says it
+        return
+    info["derived"] = {"wall_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0}
+
+
 def all_stages(csv: Path, processed: Path, ingested: dict | None = None) -> tuple[dict, list[str]]:
     """Ingest, derive and validate one recording (``.rrd`` not yet verified); the result and its previous runs.
 
-    ``ingested``: ``ingest_ahead``'s result when the recording was ingested before it got here.
+    ``ingested``: ``ingest_ahead``'s result when the recording was ingested before it got here
+    (with ``derived`` when ``derive_ahead`` derived it too: validate then reads derive's tables back).
     """
     from pipeline.derive.stage import derive_and_write
     from pipeline.ingest.stage import ingest_recording
@@ -149,16 +192,22 @@ def all_stages(csv: Path, processed: Path, ingested: dict | None = None) -> tupl
             runs = [RunPaths(processed / name) for name in ingested["runs"]]
             timing["ingest"], cpu["ingest"] = ingested["wall_s"], ingested["cpu_s"]
             cpu0 -= ingested["cpu_s"]
+        derived = (ingested or {}).get("derived")
+        if derived is not None:
+            timing["derive"], cpu["derive"] = derived["wall_s"], derived["cpu_s"]
+            cpu0 -= derived["cpu_s"]
         out["runs"] = [p.name for p in runs]
         for paths in runs:
             stage = "derive"
             t0, c0 = time.perf_counter(), time.process_time()
-            tables = derive_and_write(paths)
-            timing["derive"] += time.perf_counter() - t0
+            handed = None
+            if derived is None:
+                tables = derive_and_write(paths)
+                handed = {"kinematics": tables.kinematics, "phases": tables.phases, "overshoot": tables.overshoot}
+                timing["derive"] += time.perf_counter() - t0
             stage = "validate"
             c1 = time.process_time()
-            row = validate_run(paths, derived={"kinematics": tables.kinematics, "phases": tables.phases,
-                                               "overshoot": tables.overshoot}, verify=False)
+            row = validate_run(paths, derived=handed, verify=False)
             cpu["derive"] += c1 - c0
             cpu["validate"] += time.process_time() - c1
             for k, v in row.pop("timing_s").items():

@@ -25,7 +25,7 @@ from pipeline.io.atomic import read_parquet, write_json, write_parquet
 from pipeline.model.effects import PlantSpec
 from pipeline.runs import RunPaths, load_config
 from pipeline.derive.tables import schema_table
-from pipeline.validate.compare import comparison_table, compare, initial_state, simulate_both
+from pipeline.validate.compare import comparison_table, compare, initial_state, possible_ways, simulate_both
 
 ModelOverride = Path | str | RigConfig | PlantSpec | None
 
@@ -145,7 +145,8 @@ def validate_run(paths: RunPaths, model_override: ModelOverride = None, *, rrd: 
     spec, source = resolve_model(cfg, model_override)
     t1 = time.perf_counter()
     try:
-        sims = simulate_both(spec, kin)
+        start = initial_state(kin, spec) if possible_ways(kin) else None
+        sims = simulate_both(spec, kin, start)
     except ValueError as err:
         raise PdrError(f"the model cannot be simulated: {err}", path=paths.root) from None
     t2 = time.perf_counter()
@@ -154,7 +155,7 @@ def validate_run(paths: RunPaths, model_override: ModelOverride = None, *, rrd: 
         "run": paths.name, "model": _model_json(spec, source),
         "n_samples": int(len(kin)), "duration_s": float(kin["t_s"].iloc[-1] - kin["t_s"].iloc[0]),
         "dir_inferred": bool(kin["dir_inferred"].any()) if "dir_inferred" in kin.columns else False,
-        "initial_state": initial_state(kin, spec).to_json() if sims else None,
+        "initial_state": start.to_json() if sims else None,
         **result,
     })
     t3 = time.perf_counter()

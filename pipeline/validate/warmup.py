@@ -1,4 +1,4 @@
-"""Imported by ``pdr run``'s forkserver (``pipeline.run.PRELOAD``) before it forks workers.
+"""Imported by ``pdr run``'s forkserver (last in ``pipeline.run.preload``) before it forks workers.
 
 Importing it draws one overview figure, so each worker inherits a ready
 figure, loaded fonts and a cached background instead of paying for them on its

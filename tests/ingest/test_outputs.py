@@ -110,6 +110,31 @@ def test_mcap_many_chunks_read_back_in_order(tmp_path):
     assert [m["current_a"] for _, m in messages["/current"]] == df["current_a"].tolist()
 
 
+def test_mcap_of_one_block_built_inline_is_the_threaded_writers_file(tmp_path, monkeypatch):
+    """A file of one block reuses its size probe's records and builds its chunks without builder
+    threads: the same bytes as the threaded path (forced by probing fewer rows), read back in order."""
+    import io
+
+    from pipeline.ingest import mcap_bulk
+
+    n = 700
+    t = np.arange(n) * 50
+    body = "\n".join(f"{a},{a % 977 - 400},{a % 1024},{(a // 500) % 3 - 1}" for a in t)
+    df = ingest(("t_ms,counts,adc,dir\n" + body + "\n").encode())[0][0].signals
+    files = []
+    for probe_rows in (mcap_bulk.PROBE_ROWS, 64):
+        monkeypatch.setattr(mcap_bulk, "PROBE_ROWS", probe_rows)
+        out = io.BytesIO()
+        write_mcap(out, mcap_channels(df), log_time_ns(df["t_s"].to_numpy()), {"m": {"k": "v"}})
+        files.append(out.getvalue())
+    assert files[0] == files[1]
+    path = tmp_path / "one_block.mcap"
+    path.write_bytes(files[0])
+    messages, _, _, _, summary = _read_mcap(path)
+    assert summary.statistics.chunk_count == len(messages) == len(mcap_channels(df))
+    assert [m["counts"] for _, m in messages["/encoder"]] == (t % 977 - 400).tolist()
+
+
 def test_mcap_linear_scan_matches_indexed_read(tmp_path):
     """A reader that ignores the summary (streams every record, checks every CRC) sees the same messages."""
     result = ingest_recording(_recording(tmp_path, CLEAN + CLEAN), tmp_path / "processed")

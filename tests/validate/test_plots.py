@@ -117,3 +117,29 @@ def test_orange_shows_when_the_closed_loop_differs(runs):
     orange = np.all(np.abs(rgb - (255, 127, 14)) <= 10, axis=2)
     assert orange[100:].sum() > 2000                                    # lines, not just the legend's sample
     assert rgb.shape == (800, 1200, 3)
+
+
+def test_backgrounds_shared_through_a_folder_give_the_figure_drawn_alone(runs, tmp_path, monkeypatch):
+    """pdr run's workers share backgrounds: one saved by a figure and read by another gives the same
+    PNG bytes; a run whose axes, guard or legend differ gets its own (never another run's); a file
+    that is not a whole background is drawn over."""
+    from pipeline.validate.plots import shared_backgrounds
+
+    alone = {name: _Overview().render(name, *run) for name, run in runs.items()}
+    with shared_backgrounds(tmp_path):
+        drawn = {name: _Overview().render(name, *run) for name, run in runs.items()}
+        saved = sorted(tmp_path.iterdir())
+        reader = _Overview()
+        monkeypatch.setattr(reader.canvas, "draw", lambda: pytest.fail("drawn although shared"))
+        read = {name: reader.render(name, *run) for name, run in runs.items()}
+    assert drawn == alone and read == alone
+    assert len(saved) == 3                                      # three runs, three sets of limits
+
+    kin, sims, guard = runs["clean"]
+    other_guard = _Overview().render("g", kin, sims, 0.9 * guard)
+    with shared_backgrounds(tmp_path):
+        assert _Overview().render("g", kin, sims, 0.9 * guard) == other_guard
+        assert len(list(tmp_path.iterdir())) == 4
+        for path in tmp_path.iterdir():
+            path.write_bytes(path.read_bytes()[:1000])          # torn: not whole backgrounds
+        assert _Overview().render("clean", *runs["clean"]) == alone["clean"]
