@@ -304,18 +304,23 @@ class StartEstimator:
     def __init__(self, spec: PlantSpec, t: np.ndarray, observed: Observed) -> None:
         p = _Problem(spec, np.asarray(t, dtype=float), observed)
         zeros = np.zeros(p.m, dtype=np.int8)
+        # the plant at rest with the motor off still moves under a constant external torque: the
+        # unit responses are taken relative to that one, so they superpose
+        rest = p.run((0.0, 0.0, 0.0), zeros, logged=False)
+        rest_out, rest_state = p.outputs(rest, measured=False), _state(rest, p.m)
         free = []
         for i in range(3):
             z = np.zeros(3)
             z[i] = STATE_SCALES[i]
             free.append(p.run(z, zeros, logged=False))
-        self.F = np.column_stack([p.outputs(s, measured=False) for s in free])
-        self.Phi = np.column_stack([_state(s, p.m) for s in free])        # x0 per unit coefficient
+        self.F = np.column_stack([p.outputs(s, measured=False) - rest_out for s in free])
+        self.Phi = np.column_stack([_state(s, p.m) - rest_state for s in free])   # x0 per unit coefficient
+        self.rest_state = rest_state                                              # ... about this one
         pulses = []
         for j in range(p.m):
             c = zeros.copy()
             c[j] = 1
-            pulses.append(p.outputs(p.run((0.0, 0.0, 0.0), c, logged=False), measured=False))
+            pulses.append(p.outputs(p.run((0.0, 0.0, 0.0), c, logged=False), measured=False) - rest_out)
         self.P = np.column_stack(pulses) if pulses else np.zeros((len(p.y), 0))
         self.p = p
         self._base: dict[bytes, np.ndarray] = {}
@@ -366,7 +371,7 @@ class StartEstimator:
         w = p.weights(variances)
         J = F
         if p.spec.is_linear or self._nearly_affine(a, commands, residual, w):
-            x0 = Phi @ a
+            x0 = self.rest_state + Phi @ a
         else:
             # not affine in x0 (Coulomb friction, backlash): Gauss-Newton on the full simulation
             # from the superposed estimate, reweighted by the misfit it leaves
