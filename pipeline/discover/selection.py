@@ -25,7 +25,6 @@ reported with both scores.
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -51,7 +50,8 @@ STRUCTURE_FLOORS = 25.0      # residual MSE above this many noise variances is s
 AT_NOISE_FLOORS = 3.0        # after an effect, stop when every signal is within this of its noise floor
 NEAR_TIE = 2.0              # runner-up leaves at most twice the winner's held-out structure (+1 noise variance)
 MAX_EFFECTS = 3
-TIME_BUDGET_S = 8.0          # CPU s: a further round starts only if, at the last round's pace, it ends within this
+WORK_BUDGET = 6_000_000      # a further round starts only if, at the last round's pace, discovery's work
+                             # (``Evaluator.work``: simulated samples, ~8 CPU s) stays within this
 LATER_FULL_FITS = 3          # every candidate gets the full assessment in round 1; later rounds only the
                              # few that gain most in the coarse scan
 
@@ -214,7 +214,7 @@ class Selection:
     failures: list[str]                   # parameter sets the simulator refused (scored as infinitely bad)
     command_before: np.ndarray            # the command replayed for the base model ...
     command_after: np.ndarray             # ... and the final one (differ only in an inferred motor start)
-    stopped_for_time: bool                # a further round was not started (TIME_BUDGET_S)
+    stopped_for_time: bool                # a further round was not started (WORK_BUDGET)
     pruned: list[str]                     # accepted in a round, dropped once later effects made them redundant
     intervals: list[tuple[float, float]]  # ~95 % interval of each final effect's parameter, all refitted jointly
     meas: Measurement                     # the measurement fitted (inferred switches settled)
@@ -237,14 +237,14 @@ def select(meas: Measurement, names: tuple[str, ...] | None = None) -> Selection
     effects: tuple[Effect, ...] = ()
     rounds: list[list[Assessment | Screened]] = []
     near_tie = None
-    started, last_round = time.process_time(), 0.0
+    last_round = 0
     stopped_for_time = False
     for round_ in range(1, MAX_EFFECTS + 1):
         remaining = [n for n in names if n not in {e.name for e in effects}]
         if not remaining or (effects and max(excess(ev, effects).values()) < AT_NOISE_FLOORS):
             break
-        round_start = time.process_time()
-        if round_ > 1 and round_start - started + last_round > TIME_BUDGET_S:
+        round_start = ev.work
+        if round_ > 1 and round_start + last_round > WORK_BUDGET:
             stopped_for_time = True
             break
         nll_now = ev.nll(ev.sim(effects))
@@ -274,7 +274,7 @@ def select(meas: Measurement, names: tuple[str, ...] | None = None) -> Selection
                                              runner.fit.name: runner.fit.heldout_nll_gain},
                         "runner_up_accepted": bool(runner.accepted)}
         effects = best.fit.effects
-        last_round = time.process_time() - round_start
+        last_round = ev.work - round_start
     kept = prune(ev, effects)
     pruned = [e.name for e in effects if e.name not in {k.name for k in kept}]
     effects = kept

@@ -170,7 +170,7 @@ def discovery_json(d: Discovery, recording: str) -> dict:
                                 "includes 'no effect', so it was dropped"}
     if d.selection.stopped_for_time:
         out["stopped_for_time"] = ("a further round of candidates was not started: at the pace of the last "
-                                   "round it would have passed the time budget")
+                                   "round it would have passed the work budget (simulated samples, about 8 CPU s)")
     if d.selection.failures:
         out["simulation_failures"] = len(d.selection.failures)
     return finite_or_none(out)
