@@ -10,7 +10,11 @@ A candidate is added only when all of these hold (issue 6, step 3):
 3. BIC:       2*delta(nll) + k*ln(n) <= ``MAX_DELTA_BIC`` on all samples;
 4. interval:  its ~95 % interval excludes the value at which it is absent;
 5. signature: the residual pattern that points at it shrinks by half (or to the noise,
-              or the candidate removes ``DOMINANT_SHARE`` of all the structure).
+              or the candidate removes ``DOMINANT_SHARE`` of all the structure);
+6. size:      its fitted parameter is at least ``MIN_SIZE_SHARE`` of the way from "absent" to
+              the catalogue's typical (clearly visible) value: a catalogued effect that absorbs
+              a small misfit of another kind takes a small value (a hot winding read as springs
+              1-2 % stiffer, a start transient as a 1e-5 N m torque), so smaller is not named.
 
 The best passing candidate (largest held-out likelihood gain) is added, all
 added parameters are refitted jointly, and the round repeats (stacked effects,
@@ -30,7 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pipeline.discover.candidates import Evaluator, Fit, Scan, fit_candidate, folds_by_cycle, parameter_of, prune, scan
-from pipeline.discover.joint import effect_intervals, sensitivity
+from pipeline.discover.joint import effect_intervals, joint_fit, sensitivity
 from pipeline.discover.measurement import Measurement, ambiguous_switches, settle_switches
 from pipeline.discover.residuals import events, noise_floor, residuals
 from pipeline.model.effects import CATALOGUE, Effect
@@ -47,6 +51,7 @@ SIGNATURE_SHRINK = 0.5       # the motivating pattern must at least halve ...
 SIGNATURE_NOISE = 3.0        # ... or fall to this many noise variances
 DOMINANT_SHARE = 0.8         # ... or the candidate remove this share of all held-out structure
 STRUCTURE_FLOORS = 25.0      # residual MSE above this many noise variances is structure
+MIN_SIZE_SHARE = 0.1         # smallest nameable effect, as a share of its typical size (MODEL.md's catalogue)
 AT_NOISE_FLOORS = 3.0        # after an effect, stop when every signal is within this of its noise floor
 NEAR_TIE = 2.0              # runner-up leaves at most twice the winner's held-out structure (+1 noise variance)
 MAX_EFFECTS = 3
@@ -181,8 +186,15 @@ def assess(ev: Evaluator, meas: Measurement, effects: tuple[Effect, ...], name: 
         # local window may then hold what another, stacked effect leaves behind
         "signature_removed": (sig_a <= SIGNATURE_SHRINK * sig_b or sig_a <= SIGNATURE_NOISE
                               or share >= DOMINANT_SHARE),
+        "size": nameable_size(fit.name, fit.value),
     }
     return a
+
+
+def nameable_size(name: str, value: float) -> bool:
+    """Whether ``value`` of the effect's first parameter is at least ``MIN_SIZE_SHARE`` of its typical size."""
+    p = CATALOGUE[name].PARAMS[0]
+    return abs(value - p.absent) >= MIN_SIZE_SHARE * abs(p.typical - p.absent)
 
 
 def heldout_share(fit: Fit, floor: dict[str, float]) -> tuple[float, dict[str, float], float]:
@@ -276,6 +288,8 @@ def select(meas: Measurement, names: tuple[str, ...] | None = None) -> Selection
         effects = best.fit.effects
         last_round = ev.work - round_start
     kept = prune(ev, effects)
+    while small := [e for e in kept if not nameable_size(e.name, e.value)]:
+        kept = joint_fit(ev, tuple(e for e in kept if e is not small[0]))    # refitted jointly it shrank
     pruned = [e.name for e in effects if e.name not in {k.name for k in kept}]
     effects = kept
     spans = effect_intervals(sensitivity(ev, effects), effects) if effects else []
