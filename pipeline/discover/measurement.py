@@ -119,6 +119,13 @@ class Measurement:
             self._starts[key] = start
         return self._starts[key]
 
+    def pin_start(self, spec: PlantSpec, dir_log: np.ndarray, start: Start) -> None:
+        """Use ``start`` for ``spec`` under ``dir_log`` from now on (a start refined on more than the
+        first seconds: ``discover.start_refit``)."""
+        self.x0(spec, dir_log)
+        plant = without_offset(spec)
+        self._starts[(plant, self._estimators[plant].window(dir_log), spec.I0)] = start
+
     def simulate_ways(self, spec: PlantSpec, dir_log: np.ndarray) -> dict[str, SimResult]:
         """Closed loop and replay at the recording's own instants, from its start (validation's two ways)."""
         start = self.x0(spec, dir_log)

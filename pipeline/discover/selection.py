@@ -37,6 +37,7 @@ from pipeline.discover.candidates import Evaluator, Fit, Scan, fit_candidate, fo
 from pipeline.discover.joint import effect_intervals, joint_fit, sensitivity
 from pipeline.discover.measurement import Measurement, ambiguous_switches, settle_switches
 from pipeline.discover.residuals import events, noise_floor, residuals
+from pipeline.discover.start_refit import refine_start
 from pipeline.model.effects import CATALOGUE, Effect
 
 # Held-out MSE a candidate must remove from some signal, in that signal's noise variances.  The
@@ -294,6 +295,7 @@ def select(meas: Measurement, names: tuple[str, ...] | None = None) -> Selection
     effects = kept
     spans = effect_intervals(sensitivity(ev, effects), effects) if effects else []
     ex_before = excess(ev, ())
+    refine_start(ev, effects)
     ex_after = excess(ev, effects)
     structured = max(ex_after.values()) > STRUCTURE_FLOORS
     if structured:
