@@ -29,7 +29,7 @@ reported with both scores.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
@@ -233,6 +233,15 @@ class Selection:
     meas: Measurement                     # the measurement fitted (inferred switches settled)
 
 
+def only_a_constant_torque(meas: Measurement, name: str) -> bool:
+    """Whether the effect changes nothing in the plant but its constant external torque.  Such an effect
+    only moves where the springs rest, which after a board reset is the counter's unknown zero
+    (``Measurement.angle_reference_known``): it cannot be told from that nuisance, so it is not a candidate."""
+    base = meas.spec()
+    spec = meas.spec((CATALOGUE[name].at(CATALOGUE[name].PARAMS[0].typical),))
+    return [f.name for f in fields(base) if getattr(base, f.name) != getattr(spec, f.name)] == ["torque"]
+
+
 def excess(ev: Evaluator, effects: tuple[Effect, ...]) -> dict[str, float]:
     return {s: m / ev.floor[s] - 1.0 for s, m in ev.mse(ev.sim(effects)).items()}
 
@@ -240,6 +249,8 @@ def excess(ev: Evaluator, effects: tuple[Effect, ...]) -> dict[str, float]:
 def select(meas: Measurement, names: tuple[str, ...] | None = None) -> Selection:
     """The discovery loop on one recording (replay fits; closed loop is confirmed by the caller)."""
     names = tuple(CATALOGUE) if names is None else names
+    if not meas.angle_reference_known:
+        names = tuple(n for n in names if not only_a_constant_torque(meas, n))
     if ambiguous_switches(meas):
         base_spec = meas.spec()
         probe = Evaluator(meas, noise_floor(meas, meas.replay(base_spec)))

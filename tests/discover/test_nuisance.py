@@ -85,6 +85,7 @@ def test_after_a_board_reset_the_counters_zero_is_a_nuisance_not_a_torque(tmp_pa
     d, doc = discover_run(after)
     assert doc["verdict"] == ("explained" if effects else "none"), doc["effects"]
     assert [e["name"] for e in doc["effects"]] == [e.name for e in effects]
+    assert "constant_load_torque" not in {c["name"] for c in doc["candidates"]}   # it only moves the springs' rest
 
 
 def test_a_hot_winding_is_not_named_as_a_slightly_stiffer_spring(tmp_path):
