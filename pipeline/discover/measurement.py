@@ -46,6 +46,7 @@ class Measurement:
     # first seconds, offset); shared by ``replace``d copies, hence keyed on the command too
     _estimators: dict = field(default_factory=dict, compare=False, repr=False, hash=False)
     _starts: dict = field(default_factory=dict, compare=False, repr=False, hash=False)
+    _offsets: dict = field(default_factory=dict, compare=False, repr=False, hash=False)   # after a reset
 
     @property
     def onset(self) -> int | None:
@@ -106,17 +107,24 @@ class Measurement:
         estimator = self._estimators[plant]
         key = (plant, estimator.window(d), spec.I0)
         if key not in self._starts:
-            start = estimator.start(d, spec.I0)
-            if not self.angle_reference_known:
+            if self.angle_reference_known:
+                self._starts[key] = estimator.start(d, spec.I0)
+            elif key[:2] in self._offsets:        # the offset is the angle's: a sensor offset does not move it
+                self._starts[key] = estimator.start(d, spec.I0, offset=self._offsets[key[:2]])
+            else:
                 # the first seconds alone barely tell the counter's offset from a slowly decaying
                 # current (a motor-off lead-in): the whole segment's mean misfit pins it
+                start, offset = estimator.start(d, spec.I0), None
                 for _ in range(OFFSET_ITERATIONS):
                     sim = start.simulate(plant, self.t_fit, d, closed_loop=False)
-                    offset = float(np.mean(self.theta - sim.theta))
-                    if not np.isfinite(offset):
+                    mean = float(np.mean(self.theta - sim.theta))
+                    if not np.isfinite(mean):
                         break
+                    offset = mean
                     start = estimator.start(d, spec.I0, offset=offset)
-            self._starts[key] = start
+                self._starts[key] = start
+                if offset is not None:
+                    self._offsets[key[:2]] = offset
         return self._starts[key]
 
     def pin_start(self, spec: PlantSpec, dir_log: np.ndarray, start: Start) -> None:
