@@ -57,6 +57,7 @@ class Evaluator:
         self.floor = floor
         self._cache: dict[tuple[PlantSpec, tuple], SimResult] = {}
         self.simulations = 0
+        self.work = 0                        # simulated samples, each replay charged REPLAY_OVERHEAD more
         self.failures: list[str] = []
         self.commands: dict[PlantSpec, np.ndarray] = {}
 
@@ -66,6 +67,7 @@ class Evaluator:
         key = (replace(spec, I0=0.0), x0)
         if key not in self._cache:
             self.simulations += 1
+            self.work += self.meas.n + REPLAY_OVERHEAD
             try:
                 self._cache[key] = self.meas.replay(key[0], x0, self.command(key[0], x0))
             except (RuntimeError, FloatingPointError, ValueError, PdrError) as err:
@@ -94,6 +96,7 @@ class Evaluator:
                 except (RuntimeError, FloatingPointError, ValueError, PdrError):
                     continue
                 self.simulations += 1
+                self.work += m                   # the first phase only, from a start already estimated
                 nll = _nll_of(self, {s: r[:m] - v for (s, r), v in
                                      zip(self.meas.signals.items(), _model_signals(sim, self.meas))})
                 if nll < best_nll:
@@ -126,6 +129,11 @@ def _model_signals(sim: SimResult, meas: Measurement) -> list[np.ndarray]:
 # a sample; the first phase (up to ONSET_WINDOW samples) decides.
 ONSET_SHIFTS = tuple(range(-8, 3))
 ONSET_WINDOW = 30
+
+# What a replay costs besides its samples (start estimate, set-up, residuals), in samples: measured,
+# a replay of n samples takes about (n + 1000) * 1.3 us of CPU, so discovery's budget is in this work,
+# the same on every machine and under any load.
+REPLAY_OVERHEAD = 1000
 
 # what a model the simulator cannot run scores: finite (Brent's method does arithmetic on it), huge
 FAILED_NLL = 1e12

@@ -39,10 +39,14 @@ class Measurement:
     dir: np.ndarray                 # int8 command after each sample (logged, else inferred)
     dir_source: str                 # "logged" or "inferred"
     samples_in_recording: int = 0   # > n when only the first MAX_SAMPLES are used
+    # False for a segment after a board reset: the counter restarted wherever the pinion was, so
+    # where the springs rest in its angle is a nuisance (a constant in the angle), not a datum
+    angle_reference_known: bool = True
     # start estimators per plant without sensor offset, and their starts per (plant, the command's
     # first seconds, offset); shared by ``replace``d copies, hence keyed on the command too
     _estimators: dict = field(default_factory=dict, compare=False, repr=False, hash=False)
     _starts: dict = field(default_factory=dict, compare=False, repr=False, hash=False)
+    _offsets: dict = field(default_factory=dict, compare=False, repr=False, hash=False)   # after a reset
 
     @property
     def onset(self) -> int | None:
@@ -98,12 +102,37 @@ class Measurement:
         d = self.dir if dir_log is None else dir_log
         plant = without_offset(spec)
         if plant not in self._estimators:
-            self._estimators[plant] = StartEstimator(plant, self.t, self.observed)
+            self._estimators[plant] = StartEstimator(plant, self.t, self.observed,
+                                                     angle_offset=not self.angle_reference_known)
         estimator = self._estimators[plant]
         key = (plant, estimator.window(d), spec.I0)
         if key not in self._starts:
-            self._starts[key] = estimator.start(d, spec.I0)
+            if self.angle_reference_known:
+                self._starts[key] = estimator.start(d, spec.I0)
+            elif key[:2] in self._offsets:        # the offset is the angle's: a sensor offset does not move it
+                self._starts[key] = estimator.start(d, spec.I0, offset=self._offsets[key[:2]])
+            else:
+                # the first seconds alone barely tell the counter's offset from a slowly decaying
+                # current (a motor-off lead-in): the whole segment's mean misfit pins it
+                start, offset = estimator.start(d, spec.I0), None
+                for _ in range(OFFSET_ITERATIONS):
+                    sim = start.simulate(plant, self.t_fit, d, closed_loop=False)
+                    mean = float(np.mean(self.theta - sim.theta))
+                    if not np.isfinite(mean):
+                        break
+                    offset = mean
+                    start = estimator.start(d, spec.I0, offset=offset)
+                self._starts[key] = start
+                if offset is not None:
+                    self._offsets[key[:2]] = offset
         return self._starts[key]
+
+    def pin_start(self, spec: PlantSpec, dir_log: np.ndarray, start: Start) -> None:
+        """Use ``start`` for ``spec`` under ``dir_log`` from now on (a start refined on more than the
+        first seconds: ``discover.start_refit``)."""
+        self.x0(spec, dir_log)
+        plant = without_offset(spec)
+        self._starts[(plant, self._estimators[plant].window(dir_log), spec.I0)] = start
 
     def simulate_ways(self, spec: PlantSpec, dir_log: np.ndarray) -> dict[str, SimResult]:
         """Closed loop and replay at the recording's own instants, from its start (validation's two ways)."""
@@ -129,6 +158,10 @@ class Measurement:
 # Discovery fits the first MAX_SAMPLES samples of a longer recording: each candidate costs a few
 # dozen replays, and the 10 s budget holds for about this many (100 s of a 50 ms sketch).
 MAX_SAMPLES = 2000
+
+# After a board reset, the start is re-estimated this many times with the counter's offset taken
+# from the whole segment's misfit under the previous one.
+OFFSET_ITERATIONS = 2
 
 # Sample instants are replayed on this grid while fitting: micros() stamps make every step
 # different, and each distinct step costs the simulator a matrix exponential; moving an instant
@@ -182,7 +215,8 @@ def _column(kin: pd.DataFrame, name: str) -> np.ndarray | None:
     return kin[name].to_numpy(dtype=float, na_value=np.nan)
 
 
-def measurement_from_kinematics(kin: pd.DataFrame, config: RigConfig, name: str) -> Measurement:
+def measurement_from_kinematics(kin: pd.DataFrame, config: RigConfig, name: str,
+                                angle_reference_known: bool = True) -> Measurement:
     """Arrays for fitting from a kinematics table; refuses tables discovery cannot use."""
     if "t_s" in kin.columns and "theta_rad" not in kin.columns:
         raise PdrError("discovery needs the angle: this recording has no encoder column (columns.counts = \"\"), "
@@ -216,7 +250,8 @@ def measurement_from_kinematics(kin: pd.DataFrame, config: RigConfig, name: str)
     if np.any(np.diff(t_fit) <= 0):
         t_fit = t
     return Measurement(name=name, config=config, kinematics=kin, t=t, t_fit=t_fit, theta=theta, omega=omega,
-                       current=current, dir=d, dir_source=source, samples_in_recording=total)
+                       current=current, dir=d, dir_source=source, samples_in_recording=total,
+                       angle_reference_known=angle_reference_known)
 
 
 def _command(kin: pd.DataFrame) -> tuple[np.ndarray | None, str]:

@@ -31,11 +31,15 @@ def residuals(meas: Measurement, sim: SimResult) -> dict[str, np.ndarray]:
     The angle's residual is taken about a constant of at most one encoder count: how a sketch's
     count quantises (floor or round, the decoder's edges) biases the logged angle by up to a
     count, a nuisance no effect should be named for.  A constant torque moves the replayed angle
-    by hundreds of counts, so this hides none of it."""
+    by hundreds of counts, so this hides none of it.  After a board reset the counter's zero is
+    anywhere (``Measurement.angle_reference_known``): the whole constant is then a nuisance, and a
+    constant torque, which only moves the angle's centre, cannot be told from it."""
     r = meas.theta - sim.theta
-    count = 2.0 * np.pi / meas.config.encoder.counts_per_rev
     bias = float(np.mean(r))
-    out = {"theta": r - min(max(bias, -count), count) if np.isfinite(bias) else r}
+    if meas.angle_reference_known:
+        count = 2.0 * np.pi / meas.config.encoder.counts_per_rev
+        bias = min(max(bias, -count), count)
+    out = {"theta": r - bias if np.isfinite(bias) else r}
     if meas.current is not None:
         out["current"] = meas.current - sim.current_measured
     return out

@@ -10,7 +10,11 @@ A candidate is added only when all of these hold (issue 6, step 3):
 3. BIC:       2*delta(nll) + k*ln(n) <= ``MAX_DELTA_BIC`` on all samples;
 4. interval:  its ~95 % interval excludes the value at which it is absent;
 5. signature: the residual pattern that points at it shrinks by half (or to the noise,
-              or the candidate removes ``DOMINANT_SHARE`` of all the structure).
+              or the candidate removes ``DOMINANT_SHARE`` of all the structure);
+6. size:      its fitted parameter is at least ``MIN_SIZE_SHARE`` of the way from "absent" to
+              the catalogue's typical (clearly visible) value: a catalogued effect that absorbs
+              a small misfit of another kind takes a small value (a hot winding read as springs
+              1-2 % stiffer, a start transient as a 1e-5 N m torque), so smaller is not named.
 
 The best passing candidate (largest held-out likelihood gain) is added, all
 added parameters are refitted jointly, and the round repeats (stacked effects,
@@ -28,7 +32,7 @@ reported with both scores.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
@@ -36,6 +40,7 @@ from pipeline.discover.candidates import Evaluator, Fit, Scan, fit_candidate, fo
 from pipeline.discover.joint import effect_intervals, joint_fit, sensitivity
 from pipeline.discover.measurement import Measurement, ambiguous_switches, settle_switches
 from pipeline.discover.residuals import events, noise_floor, residuals
+from pipeline.discover.start_refit import refine_start
 from pipeline.model.effects import CATALOGUE, Effect
 
 # Held-out MSE a candidate must remove from some signal, in that signal's noise variances.  The
@@ -56,12 +61,13 @@ STRUCTURE_FLOORS = 25.0      # residual MSE above this many noise variances is s
 # which a model's own integration misses by a few noise variances (a drift of a count or two over a
 # recording, that a near-zero load torque then "explains"), so three.
 ROUND_FLOORS = {"theta": 3.0, "current": MIN_GAIN_FLOORS["current"]}
+MIN_SIZE_SHARE = 0.1         # smallest nameable effect, as a share of its typical size (MODEL.md's catalogue)
 NEAR_TIE = 2.0              # runner-up leaves at most twice the winner's held-out structure (+1 noise variance)
 MAX_EFFECTS = 3
-# A further round starts only if, at the last round's count, it ends within this many simulations (about
-# 8 CPU s at the ~5 ms a replay of up to 2000 samples costs here).  Counted in simulations, not seconds:
-# the same recording gets the same rounds, and so the same answer, on a busy machine as on an idle one.
-SIMULATION_BUDGET = 1600
+# A further round starts only if, at the last round's pace, discovery's work (``Evaluator.work``: simulated
+# samples, ~8 CPU s) stays within this.  Counted in work, not seconds: the same recording gets the same
+# rounds, and so the same answer, on a busy machine as on an idle one.
+WORK_BUDGET = 6_000_000
 LATER_FULL_FITS = 3          # every candidate gets the full assessment in round 1; later rounds only the
                              # few that gain most in the coarse scan
 
@@ -191,8 +197,15 @@ def assess(ev: Evaluator, meas: Measurement, effects: tuple[Effect, ...], name: 
         # local window may then hold what another, stacked effect leaves behind
         "signature_removed": (sig_a <= SIGNATURE_SHRINK * sig_b or sig_a <= SIGNATURE_NOISE
                               or share >= DOMINANT_SHARE),
+        "size": nameable_size(fit.name, fit.value),
     }
     return a
+
+
+def nameable_size(name: str, value: float) -> bool:
+    """Whether ``value`` of the effect's first parameter is at least ``MIN_SIZE_SHARE`` of its typical size."""
+    p = CATALOGUE[name].PARAMS[0]
+    return abs(value - p.absent) >= MIN_SIZE_SHARE * abs(p.typical - p.absent)
 
 
 def heldout_share(fit: Fit, floor: dict[str, float]) -> tuple[float, dict[str, float], float]:
@@ -224,10 +237,19 @@ class Selection:
     failures: list[str]                   # parameter sets the simulator refused (scored as infinitely bad)
     command_before: np.ndarray            # the command replayed for the base model ...
     command_after: np.ndarray             # ... and the final one (differ only in an inferred motor start)
-    stopped_for_time: bool                # a further round was not started (SIMULATION_BUDGET)
+    stopped_for_time: bool                # a further round was not started (WORK_BUDGET)
     pruned: list[str]                     # accepted in a round, dropped once later effects made them redundant
     intervals: list[tuple[float, float]]  # ~95 % interval of each final effect's parameter, all refitted jointly
     meas: Measurement                     # the measurement fitted (inferred switches settled)
+
+
+def only_a_constant_torque(meas: Measurement, name: str) -> bool:
+    """Whether the effect changes nothing in the plant but its constant external torque.  Such an effect
+    only moves where the springs rest, which after a board reset is the counter's unknown zero
+    (``Measurement.angle_reference_known``): it cannot be told from that nuisance, so it is not a candidate."""
+    base = meas.spec()
+    spec = meas.spec((CATALOGUE[name].at(CATALOGUE[name].PARAMS[0].typical),))
+    return [f.name for f in fields(base) if getattr(base, f.name) != getattr(spec, f.name)] == ["torque"]
 
 
 def excess(ev: Evaluator, effects: tuple[Effect, ...]) -> dict[str, float]:
@@ -270,6 +292,8 @@ def worth_another_round(left: dict[str, float]) -> bool:
 def select(meas: Measurement, names: tuple[str, ...] | None = None) -> Selection:
     """The discovery loop on one recording (replay fits; closed loop is confirmed by the caller)."""
     names = tuple(CATALOGUE) if names is None else names
+    if not meas.angle_reference_known:
+        names = tuple(n for n in names if not only_a_constant_torque(meas, n))
     if ambiguous_switches(meas):
         base_spec = meas.spec()
         probe = Evaluator(meas, noise_floor(meas, meas.replay(base_spec)))
@@ -286,8 +310,8 @@ def select(meas: Measurement, names: tuple[str, ...] | None = None) -> Selection
         remaining = [n for n in names if n not in {e.name for e in effects}]
         if not remaining or (effects and not worth_another_round(excess(ev, effects))):
             break
-        round_start = ev.simulations
-        if round_ > 1 and round_start + last_round > SIMULATION_BUDGET:
+        round_start = ev.work
+        if round_ > 1 and round_start + last_round > WORK_BUDGET:
             stopped_for_time = True
             break
         nll_now = ev.nll(ev.sim(effects))
@@ -317,13 +341,16 @@ def select(meas: Measurement, names: tuple[str, ...] | None = None) -> Selection
                                              runner.fit.name: runner.fit.heldout_nll_gain},
                         "runner_up_accepted": bool(runner.accepted)}
         effects = best.fit.effects
-        last_round = ev.simulations - round_start
+        last_round = ev.work - round_start
     effects = swap_twins(ev, effects, rounds)
     kept = prune(ev, effects)
+    while small := [e for e in kept if not nameable_size(e.name, e.value)]:
+        kept = joint_fit(ev, tuple(e for e in kept if e is not small[0]))    # refitted jointly it shrank
     pruned = [e.name for e in effects if e.name not in {k.name for k in kept}]
     effects = kept
     spans = effect_intervals(sensitivity(ev, effects), effects) if effects else []
     ex_before = excess(ev, ())
+    refine_start(ev, effects)
     ex_after = excess(ev, effects)
     structured = max(ex_after.values()) > STRUCTURE_FLOORS
     if structured:

@@ -65,10 +65,11 @@ def _errors(kin: pd.DataFrame, sims: dict[str, SimResult]) -> dict[str, dict[str
     return {way: mse_only(signal_errors(kin, sims[way])) for way in WAYS}
 
 
-def discover(kin: pd.DataFrame, config: RigConfig, name: str) -> Discovery:
-    """The whole workflow on one kinematics table (no I/O)."""
+def discover(kin: pd.DataFrame, config: RigConfig, name: str, after_reset: bool = False) -> Discovery:
+    """The whole workflow on one kinematics table (no I/O); ``after_reset``: the table is a segment
+    that began after a board reset (its angle's zero is wherever the counter restarted)."""
     t0 = time.perf_counter()
-    sel = select(measurement_from_kinematics(kin, config, name))
+    sel = select(measurement_from_kinematics(kin, config, name, angle_reference_known=not after_reset))
     meas = sel.meas
     base = meas.simulate_ways(meas.spec(), sel.command_before)
     final = meas.simulate_ways(meas.spec(sel.effects), sel.command_after) if sel.effects else base
@@ -169,7 +170,7 @@ def discovery_json(d: Discovery, recording: str) -> dict:
                                 "includes 'no effect', so it was dropped"}
     if d.selection.stopped_for_time:
         out["stopped_for_time"] = ("a further round of candidates was not started: at the pace of the last "
-                                   "round it would have passed the time budget")
+                                   "round it would have passed the work budget (simulated samples, about 8 CPU s)")
     if d.selection.failures:
         out["simulation_failures"] = len(d.selection.failures)
     return finite_or_none(out)
@@ -177,8 +178,20 @@ def discovery_json(d: Discovery, recording: str) -> dict:
 
 # ------------------------------------------------------------------ shell
 
+def after_board_reset(paths: RunPaths) -> bool:
+    """Whether the run is a segment after the capture's first (ingest starts a segment at each board reset)."""
+    import json
+
+    try:
+        report = json.loads(paths.ingest_report.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    return any(seg.get("run") == report.get("run") and seg.get("index", 0) > 0
+               for seg in report.get("segments", []) if isinstance(seg, dict))
+
+
 def discover_run(paths: RunPaths, recording: str | None = None) -> tuple[Discovery, dict]:
     """Discovery on one processed (ingested and derived) run."""
     kin = load_kinematics(paths)
-    d = discover(kin, load_config(paths), paths.name)
+    d = discover(kin, load_config(paths), paths.name, after_reset=after_board_reset(paths))
     return d, discovery_json(d, recording if recording is not None else str(paths.root))

@@ -150,6 +150,7 @@ class _Problem:
         self.n = n = _window(t)
         self.spec = spec
         self.I0 = 0.0
+        self.offset = 0.0                               # rad: the counter's zero off the springs' rest
         self.lead = lead_offsets(float(spec.Td), float(spec.period_s))
         self.m = len(self.lead)
         self.t = np.concatenate([t[0] + self.lead, t[:n]])
@@ -167,6 +168,7 @@ class _Problem:
         self.noise = np.array([max(float(observed[s][1]), 1e-30) for s in self.names])
         self.current_rows = (np.array(self.names) == "current")[self.which].astype(float)
         self._runs: dict[bytes, SimResult] = {}
+        self.theta_rows = (np.array(self.names) == "theta")[self.which].astype(float)
 
     def run(self, z, commands, *, logged: bool = True) -> SimResult:
         """Replay from ``z`` under the pre-log ``commands`` and (``logged``) the logged ones, else motor off.
@@ -188,7 +190,7 @@ class _Problem:
         m = self.m
         cols = {"theta": sim.theta[m:], "current": sim.current[m:]}
         out = np.concatenate([cols[s] for s in self.names])
-        return out + self.I0 * self.current_rows if measured else out
+        return out + self.I0 * self.current_rows + self.offset * self.theta_rows if measured else out
 
     def weights(self, variances: np.ndarray) -> np.ndarray:
         return np.where(self.ok, 1.0 / np.sqrt(variances[self.which]), 0.0)
@@ -310,9 +312,13 @@ class StartEstimator:
     """The simulations a start estimate needs, for one plant without its current-sensor offset:
     the responses to unit initial states and to each pre-log command do not depend on the logged
     command, so they are simulated once; each command then costs one replay, and a sensor offset
-    none (it only moves the measured current)."""
+    none (it only moves the measured current).
 
-    def __init__(self, spec: PlantSpec, t: np.ndarray, observed: Observed) -> None:
+    ``angle_offset``: the counter's zero is not where the springs rest (a segment after a board
+    reset restarts the count wherever the pinion then is), so a constant in the angle is a fourth
+    unknown of the same least squares; it moves no state."""
+
+    def __init__(self, spec: PlantSpec, t: np.ndarray, observed: Observed, angle_offset: bool = False) -> None:
         p = _Problem(spec, np.asarray(t, dtype=float), observed)
         zeros = np.zeros(p.m, dtype=np.int8)
         # The response from rest with the motor off: zero, unless a constant load torque drives the
@@ -326,14 +332,17 @@ class StartEstimator:
             z[i] = STATE_SCALES[i]
             free.append(p.run(z, zeros, logged=False))
         self.F = np.column_stack([p.outputs(s, measured=False) - rest_out for s in free])
-        self.Phi = np.column_stack([_state(s, p.m) - rest_state for s in free])        # x0 per unit coefficient
+        self.Phi = np.column_stack([_state(s, p.m) - rest_state for s in free])   # x0 per unit coefficient
+        self.rest_state = rest_state                                              # ... about this one
+        if angle_offset:
+            self.F = np.column_stack([self.F, p.theta_rows])
+            self.Phi = np.column_stack([self.Phi, np.zeros(3)])
         pulses = []
         for j in range(p.m):
             c = zeros.copy()
             c[j] = 1
             pulses.append(p.outputs(p.run((0.0, 0.0, 0.0), c, logged=False), measured=False) - rest_out)
         self.P = np.column_stack(pulses) if pulses else np.zeros((len(p.y), 0))
-        self.rest_state = rest_state            # where the load torque alone moves the state by t0
         self.p = p
         self._base: dict[bytes, np.ndarray] = {}
 
@@ -352,8 +361,9 @@ class StartEstimator:
         """The part of a command sequence the estimate sees (a cache key)."""
         return np.asarray(dir_log[:self.p.n], dtype=np.int8).tobytes()
 
-    def start(self, dir_log: np.ndarray, I0: float = 0.0) -> Start:
-        """x0, its covariance and the pre-log commands under ``dir_log`` and sensor offset ``I0``.
+    def start(self, dir_log: np.ndarray, I0: float = 0.0, offset: float | None = None) -> Start:
+        """x0, its covariance and the pre-log commands under ``dir_log`` and sensor offset ``I0``
+        (and, for an estimator with a free ``angle_offset``, that offset when it is known from elsewhere).
 
         Signals are weighted by their noise or their misfit, whichever is larger, reweighted a
         few times from two starts (``_first_weights``); the start with the better concentrated
@@ -368,6 +378,9 @@ class StartEstimator:
         p.I0 = float(I0)
         r0 = self._base[key] - p.I0 * p.current_rows
         F, P, Phi = self.F, self.P, self.Phi
+        if offset is not None and F.shape[1] > 3:
+            F, Phi = F[:, :3], Phi[:, :3]
+            r0 = r0 - offset * p.theta_rows
         best = None
         for variances in _first_weights(p):
             for _ in range(REWEIGHTS):
@@ -384,13 +397,16 @@ class StartEstimator:
                 break
         _, fits, variances = best
         _, commands, a = fits[0]
+        p.offset = float(a[3]) if len(a) > 3 else float(offset or 0.0)
+        fit_phi = Phi                          # the coefficients of ``fits`` map to x0 by this one
         w = p.weights(variances)
         J = F
-        if p.spec.is_linear or self._nearly_affine(a, commands, residual):
-            x0 = Phi @ a + self.rest_state
+        if p.spec.is_linear or self._nearly_affine(a[:3], commands, residual):
+            x0 = self.rest_state + Phi @ a
         else:
             # not affine in x0 (Coulomb friction, backlash): Gauss-Newton on the full simulation
             # from the superposed estimate, reweighted by the misfit it leaves
+            a, Phi = a[:3], Phi[:, :3]          # the angle offset stays at its superposed estimate
             for _ in range(2):
                 a, residual, J = _gauss_newton(p, a, commands, w)
                 previous, variances = variances, p.variances(residual)
@@ -401,11 +417,11 @@ class StartEstimator:
         p.forget_runs()
         Jw = J * w[:, None]
         scale = _residual_scale(residual * w, p.dof)
-        cov_x = Phi @ (scale * np.linalg.pinv(Jw.T @ Jw)) @ Phi.T + _spread(fits, Phi, scale)
+        cov_x = Phi @ (scale * np.linalg.pinv(Jw.T @ Jw)) @ Phi.T + _spread(fits, fit_phi, scale)
         sigma = np.sqrt(np.clip(np.diag(cov_x), 0.0, None))
         return Start(x0=tuple(float(v) for v in x0), sigma=tuple(float(v) for v in sigma),
                      lead_s=tuple(float(v) for v in p.lead), commands=tuple(int(c) for c in commands),
-                     z=tuple(float(v) for v in a * STATE_SCALES))
+                     z=tuple(float(v) for v in a[:3] * STATE_SCALES))
 
 
 def without_offset(spec: PlantSpec) -> PlantSpec:

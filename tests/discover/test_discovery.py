@@ -75,7 +75,7 @@ def test_two_stacked_effects_are_both_named(tmp_path):
 
 def test_three_stacked_effects_each_within_20_percent_whatever_the_order(tmp_path, monkeypatch):
     """Viscous + Coulomb + loop delay at once: each named, each parameter within 20 %; the joint refit
-    lands on the same values from either order of the effects.  Discovery's budget counts simulations, not
+    lands on the same values from either order of the effects.  Discovery's budget counts work, not
     seconds: a CPU clock running 100 s per reading (a machine busy with other work) stops no round."""
     import itertools
     import time
@@ -142,3 +142,17 @@ def test_a_catalogued_effect_beside_an_uncatalogued_one_is_named_and_the_rest_le
     assert [e.name for e in d.effects] == ["viscous_friction"]
     assert abs(d.effects[0].parameters["b"] - 3e-4) / 3e-4 < 0.15
     assert d.verdict == "unexplained"
+
+
+def test_the_work_budget_decides_the_same_way_on_any_machine(tmp_path, monkeypatch):
+    """Discovery's budget is counted in simulated samples, not CPU seconds (BLAS threads waiting for
+    a core on a loaded machine counted as CPU): a budget the first round already spends stops the
+    second from starting, whatever the load."""
+    hidden = (_effect("viscous_friction", 3e-4), _effect("current_sensor_offset", 0.08))
+    kin, rig, _ = rig_kinematics(hidden, seed=2, work=tmp_path)
+    full = discover(kin, rig, "pair").selection
+    assert not full.stopped_for_time and len(full.rounds) >= 2
+    monkeypatch.setattr("pipeline.discover.selection.WORK_BUDGET", 1)
+    cut = discover(kin, rig, "pair").selection
+    assert cut.stopped_for_time and len(cut.rounds) == 1 and len(cut.effects) == 1
+    assert cut.simulations < full.simulations
