@@ -163,8 +163,9 @@ def summarise(rows: list[dict]) -> dict:
         "in_process_cpu_s": {"median": float(df["in_process_cpu_s"].median()), "max": float(df["in_process_cpu_s"].max())}
         if "in_process_cpu_s" in df else None,
         "discover_wall_s": {"median": float(wall.median()), "max": float(wall.max()), "mean": float(wall.mean()),
-                            "over_10s": int((wall > 10).sum()), "over_2s": int((wall > 2).sum())},
-        "discover_cpu_s": {"median": float(cpu.median()), "max": float(cpu.max()), "mean": float(cpu.mean())},
+                            "over_10s": int((wall > 10).sum()), "over_2s": int((wall > 2).sum())} if len(timed) else None,
+        "discover_cpu_s": {"median": float(cpu.median()), "max": float(cpu.max()), "mean": float(cpu.mean())}
+        if len(timed) else None,
         "load_average_at_end": os.getloadavg(),
     }
 
@@ -188,6 +189,8 @@ def print_summary(s: dict) -> None:
     print(f"The command ran on {s['command_timed']} recordings (its decision equal to the in-process one on "
           f"{s['command_agrees_with_in_process']}); in-process CPU (ingest, derive, discovery, no report): "
           f"{s['in_process_cpu_s']}")
+    if w is None:
+        return
     print(f"pdr discover RAW.csv, wall per recording (two at a time on this machine, load average at the end "
           f"{s['load_average_at_end'][0]:.1f}): median {w['median']:.2f} s, max {w['max']:.2f} s, mean {w['mean']:.2f} s; "
           f"over 2 s: {w['over_2s']}, over 10 s: {w['over_10s']}")

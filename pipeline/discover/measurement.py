@@ -109,8 +109,11 @@ class Measurement:
         if key not in self._starts:
             if self.angle_reference_known:
                 self._starts[key] = estimator.start(d, spec.I0)
-            elif key[:2] in self._offsets:        # the offset is the angle's: a sensor offset does not move it
-                self._starts[key] = estimator.start(d, spec.I0, offset=self._offsets[key[:2]])
+            elif self._offsets:
+                # the offset is the counter's, one per segment: estimated under the first model asked
+                # (the base), then held, as the angle residual is taken about its own mean anyway;
+                # re-estimating it for every candidate's plant tripled each start's cost
+                self._starts[key] = estimator.start(d, spec.I0, offset=self._offsets["segment"])
             else:
                 # the first seconds alone barely tell the counter's offset from a slowly decaying
                 # current (a motor-off lead-in): the whole segment's mean misfit pins it
@@ -124,7 +127,7 @@ class Measurement:
                     start = estimator.start(d, spec.I0, offset=offset)
                 self._starts[key] = start
                 if offset is not None:
-                    self._offsets[key[:2]] = offset
+                    self._offsets["segment"] = offset
         return self._starts[key]
 
     def pin_start(self, spec: PlantSpec, dir_log: np.ndarray, start: Start) -> None:
