@@ -21,6 +21,7 @@ from pipeline.errors import PdrError
 from pipeline.model.effects import Effect, PlantSpec
 from pipeline.model.simulate import SimResult
 from pipeline.validate.compare import observed_signals
+from pipeline.validate.noise import sample_instants
 from pipeline.validate.initial_state import Observed, Start, StartEstimator, without_offset
 
 
@@ -235,6 +236,8 @@ def measurement_from_kinematics(kin: pd.DataFrame, config: RigConfig, name: str,
         raise PdrError(f"only {len(kin)} samples; discovery needs at least 20 to fit and hold out", path=name)
     t = _column(kin, "t_s")
     theta = _column(kin, "theta_rad")
+    if t is not None and np.all(np.isfinite(t)):
+        t = sample_instants(t)
     if not (np.all(np.isfinite(t)) and np.all(np.diff(t) > 0)):
         raise PdrError("sample times must be finite and strictly increasing", path=name)
     if not np.all(np.isfinite(theta)):

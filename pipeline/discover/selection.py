@@ -57,10 +57,11 @@ DOMINANT_SHARE = 0.8         # ... or the candidate remove this share of all hel
 STRUCTURE_FLOORS = 25.0      # residual MSE above this many noise variances is structure
 # After an effect, a further round only while some signal keeps this much structure, in noise variances:
 # the current's floor is its sensor's white noise, which the right model reaches, so what a candidate
-# must remove (MIN_GAIN_FLOORS) is worth a round; the angle's counts only quantisation and the clock,
-# which a model's own integration misses by a few noise variances (a drift of a count or two over a
-# recording, that a near-zero load torque then "explains"), so three.
-ROUND_FLOORS = {"theta": 3.0, "current": MIN_GAIN_FLOORS["current"]}
+# must remove (MIN_GAIN_FLOORS) is worth a round; the angle's counts quantisation and the clock's
+# truncation about the mid-step instants (``noise.sample_instants``), so one noise variance left is
+# structure too.  A near-zero effect that would absorb a count of drift is refused by its size
+# (MIN_SIZE_SHARE), not by this floor.
+ROUND_FLOORS = {"theta": 1.0, "current": MIN_GAIN_FLOORS["current"]}
 MIN_SIZE_SHARE = 0.1         # smallest nameable effect, as a share of its typical size (MODEL.md's catalogue)
 NEAR_TIE = 2.0              # runner-up leaves at most twice the winner's held-out structure (+1 noise variance)
 MAX_EFFECTS = 3

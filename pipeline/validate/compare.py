@@ -26,7 +26,7 @@ from pipeline.model.effects import PlantSpec
 from pipeline.model.simulate import SimResult
 from pipeline.validate.initial_state import Observed, Start, estimate_start
 from pipeline.validate.metrics import signal_errors
-from pipeline.validate.noise import angle_noise, signal_noise
+from pipeline.validate.noise import angle_noise, sample_instants, signal_noise
 
 WAYS = ("closed_loop", "replay")
 # Why a way is not run on a recording that lacks what it needs (a capture without an encoder column)
@@ -67,7 +67,8 @@ def initial_state(kin: pd.DataFrame, spec: PlantSpec) -> Start:
     persist for La/Ra = 7 s; the first seconds pin the start down (``initial_state.py``).
     Validation and discovery share this estimate, so their MSEs are the same numbers.
     """
-    return estimate_start(spec, column(kin, "t_s", dtype=float), logged_dir(kin), observed_signals(kin))
+    return estimate_start(spec, sample_instants(column(kin, "t_s", dtype=float)), logged_dir(kin),
+                          observed_signals(kin))
 
 
 def logged_dir(kin: pd.DataFrame) -> np.ndarray:
@@ -81,7 +82,7 @@ def simulate_both(spec: PlantSpec, kin: pd.DataFrame, start: Start | None = None
     ways = possible_ways(kin)
     if not ways:
         return {}
-    t = column(kin, "t_s", dtype=float)
+    t = sample_instants(column(kin, "t_s", dtype=float))
     d = logged_dir(kin)
     start = initial_state(kin, spec) if start is None else start
     return {way: start.simulate(spec, t, d, closed_loop=way == "closed_loop") for way in ways}

@@ -88,11 +88,18 @@ def clock_step(t: np.ndarray) -> float:
     return float(np.diff(intervals).min()) if len(intervals) > 1 else 0.0
 
 
+def sample_instants(t: np.ndarray) -> np.ndarray:
+    """The instants the samples were taken at, as well as the stamps tell: a clock that truncates
+    (millis()) stamps an instant somewhere in [stamp, stamp + step), half a step later on average,
+    so the model is sampled there (a velocity times that mean lag would otherwise be structure)."""
+    t = np.asarray(t, dtype=float)
+    return t + clock_step(t) / 2.0
+
+
 def timing_noise(omega: np.ndarray, t: np.ndarray) -> float:
-    """Angle error from the clock's truncation: the true instant lies up to one step after the
-    logged one, an error of w * U(0, step) with second moment w^2 step^2 / 3 (its mean, half a
-    step, shifts the whole axis: structure that no model removes, so it counts here too)."""
+    """Angle error from the clock's truncation about ``sample_instants``: w * U(-step/2, step/2),
+    variance w^2 step^2 / 12."""
     w = np.asarray(omega, dtype=float)
     w = w[np.isfinite(w)]
     step = clock_step(t)
-    return float(np.mean(w * w)) * step * step / 3.0 if len(w) else 0.0
+    return float(np.mean(w * w)) * step * step / 12.0 if len(w) else 0.0

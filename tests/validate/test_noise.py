@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from pipeline.validate.noise import clock_step, difference_noise, quantum, signal_noise, timing_noise
+from pipeline.validate.noise import clock_step, difference_noise, quantum, sample_instants, signal_noise, timing_noise
 
 COUNT = 2 * np.pi / 6533.12            # one encoder count, rad
 ADC_AMPS = 5.0 / 1024 / 0.185          # one ADC step of an ACS712-05B, A
@@ -50,4 +50,16 @@ def test_the_clock_step_comes_from_the_stamps():
     assert clock_step(micros) == pytest.approx(1e-6)
     assert clock_step(np.arange(500) * 0.05) == 0.0            # a schedule, not a truncating clock
     omega = np.full(500, 2.0)
-    assert timing_noise(omega, millis) == pytest.approx(4.0 * 1e-6 / 3.0)
+    assert timing_noise(omega, millis) == pytest.approx(4.0 * 1e-6 / 12.0)     # about the mid-step instant
+
+
+def test_a_truncating_clock_samples_half_a_step_after_its_stamps():
+    """millis() stamps floor(true instant): the instants are the stamps plus half a step on average,
+    and a schedule's exact stamps are left alone."""
+    rng = np.random.default_rng(3)
+    true = np.cumsum(50.0 + rng.uniform(0.0, 0.6, 2000))
+    millis = np.floor(true) / 1000.0
+    lag = true / 1000.0 - sample_instants(millis)
+    assert abs(np.mean(lag)) < 2e-5 and np.max(np.abs(lag)) <= 0.5e-3 + 1e-12
+    schedule = np.arange(500) * 0.05
+    assert np.array_equal(sample_instants(schedule), schedule)
