@@ -45,25 +45,23 @@ def test_a_softer_spring_picked_after_a_heavier_rack_in_round_one_is_swapped_in_
     """Randomised draw 85: a spring 11 % soft and a 41 ms loop delay at a 67 ms period.  Round one
     adopts a rack inertia (a near-twin: both slow the oscillation), the delay comes later; with the
     delay known the spring fits far better, and replaces it."""
-    kin, rig, draw = _randomised(85, tmp_path)
-    truth = {e.name: e.value for e in draw.effects}
-    d = discover(kin, rig, "draw85")
-    found = {e.name: e.value for e in d.effects}
-    assert set(found) == set(truth) == {"spring_stiffness", "loop_delay"}
-    assert d.verdict == "explained"
-    for name, v in truth.items():
-        assert abs(found[name] - v) <= 0.05 * abs(v), name
+    _assert_draw_explained(85, {"spring_stiffness", "loop_delay"}, 0.05, tmp_path)
 
 
 def test_backlash_beside_a_heavier_rack_at_a_slow_period_is_named_once_the_clock_is_centred(tmp_path):
     """Randomised draw 116: a 0.053 rad backlash and a heavier rack at a 75 ms period, millis() stamps.
     The angle's floor there is mostly the clock's truncation; taken about the stamps (a half-step lag
     counted as noise) it hid the backlash after the rack inertia, about the mid-step instants it does not."""
-    kin, rig, draw = _randomised(116, tmp_path)
+    _assert_draw_explained(116, {"backlash", "rack_inertia"}, 0.2, tmp_path)
+
+
+def _assert_draw_explained(index: int, hidden: set[str], tolerance: float, work) -> None:
+    """Draw ``index`` hides exactly ``hidden``; discovery names them all, explained, each within ``tolerance``."""
+    kin, rig, draw = _randomised(index, work)
     truth = {e.name: e.value for e in draw.effects}
-    d = discover(kin, rig, "draw116")
+    d = discover(kin, rig, f"draw{index}")
     found = {e.name: e.value for e in d.effects}
-    assert set(found) == set(truth) == {"backlash", "rack_inertia"}
+    assert set(found) == set(truth) == hidden
     assert d.verdict == "explained"
     for name, v in truth.items():
-        assert abs(found[name] - v) <= 0.2 * abs(v), name
+        assert abs(found[name] - v) <= tolerance * abs(v), name
