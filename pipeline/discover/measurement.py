@@ -22,7 +22,8 @@ from pipeline.model.effects import Effect, PlantSpec
 from pipeline.model.simulate import SimResult
 from pipeline.validate.compare import observed_signals
 from pipeline.validate.noise import sample_instants
-from pipeline.validate.initial_state import Observed, Start, StartEstimator, without_offset
+from pipeline.validate.initial_state import Observed, StartEstimator, without_offset
+from pipeline.validate.start import Start
 
 
 @dataclass(frozen=True)

@@ -17,7 +17,8 @@ import numpy as np
 from pipeline.discover.candidates import Evaluator
 from pipeline.discover.residuals import residuals
 from pipeline.model.effects import Effect
-from pipeline.validate.initial_state import STATE_SCALES, Start
+from pipeline.validate.initial_state import STATE_SCALES
+from pipeline.validate.start import Start
 
 STEPS = 3
 RELATIVE_STEP = 1e-3          # of each state's typical size (``STATE_SCALES``), for the Jacobian

@@ -26,12 +26,13 @@ before the first sample acts only before it, and x0 alone is estimated.
 from __future__ import annotations
 
 import itertools
-from dataclasses import dataclass, fields, replace
+from dataclasses import replace
 
 import numpy as np
 
 from pipeline.model.effects import PlantSpec
-from pipeline.model.simulate import SimResult, simulate, with_lost_samples
+from pipeline.model.simulate import SimResult, simulate
+from pipeline.validate.start import Start, first_dir
 
 # Samples the estimate uses: the first 2 s (at least 20 samples).  x0 shows most there (the rig's
 # oscillatory mode decays in ~1.2 s) and a model error has had little time to grow.  A model
@@ -48,7 +49,6 @@ STATE_SCALES = np.array([0.1, 1.0, 0.01])
 REWEIGHTS = 3                    # reweightings by the misfit (stopped once the variances settle)
 REFINE_STEPS = 3                 # Gauss-Newton steps for a plant that is not affine in x0
 JACOBIAN_STEP = 1e-3             # of a coefficient (a fraction of the state's typical size)
-STATE_NAMES = ("current_a", "omega_rad_s", "delta_m")
 # A command change among the pre-log commands is a priori unlikely: the rig reverses about once
 # in 35 samples.  A change costs 2 ln 35 ~ 7 in the weighted squared residual (-2 log of its prior
 # odds), so it is chosen only when the data ask for it (a pulse of the other command and a
@@ -57,61 +57,6 @@ SWITCH_PENALTY = 2.0 * np.log(35.0)
 
 # name -> (measured values, noise variance); names "theta" [rad] and "current" [A, as the sensor reads]
 Observed = dict[str, tuple[np.ndarray, float]]
-
-
-@dataclass(frozen=True)
-class Start:
-    """The estimated start of a recording; hashable, so fits can key caches on it."""
-
-    x0: tuple[float, float, float]          # [I A, w rad/s, delta m] at the first sample
-    sigma: tuple[float, float, float]       # their 1-sigma uncertainty
-    lead_s: tuple[float, ...] = ()          # when the pre-log commands were decided, s relative to t0 (< 0)
-    commands: tuple[int, ...] = ()          # those commands: the one in force at t0, then those in flight
-    z: tuple[float, float, float] | None = None   # state at the first lead instant (x0 without a lead)
-
-    @classmethod
-    def given(cls, x0: tuple[float, float, float]) -> "Start":
-        """A start known exactly (a simulation from rest, a test)."""
-        return cls(x0=tuple(map(float, x0)), sigma=(0.0, 0.0, 0.0))
-
-    def simulate(self, spec: PlantSpec, t: np.ndarray, dir_log: np.ndarray, *, closed_loop: bool) -> SimResult:
-        """``simulate`` from this start at the instants ``t`` (replay, or closed loop after the log's start),
-        on the sketch's own loop instants: a row lost over serial is simulated too, its command decided
-        by the sketch's rule (``with_lost_samples``), and left out of the result."""
-        t = np.asarray(t, dtype=float)
-        dir0 = first_dir(np.concatenate([np.asarray(self.commands, dtype=np.int8), np.asarray(dir_log, dtype=np.int8)]))
-        t_loop, d_loop, kept = with_lost_samples(t, np.asarray(dir_log, dtype=np.int8))
-        log = np.concatenate([np.asarray(self.commands, dtype=np.int8), d_loop])
-        t_all = np.concatenate([t[0] + np.asarray(self.lead_s, dtype=float), t_loop])
-        z = self.x0 if self.z is None else self.z
-        sim = drop_lead(simulate(spec, t_all, x0=z, dir0=dir0, dir_log=log, closed_loop=closed_loop), len(self.lead_s))
-        return sim if len(kept) == len(t_loop) else take(sim, kept)
-
-    def to_json(self) -> dict:
-        """What ``validation.json`` reports: x0 with its 1-sigma, and the pre-log commands."""
-        return {**{k: float(v) for k, v in zip(STATE_NAMES, self.x0)},
-                "sigma": {k: float(v) for k, v in zip(STATE_NAMES, self.sigma)},
-                "pre_log_commands": [{"decided_s": float(s), "dir": int(c)}
-                                     for s, c in zip(self.lead_s, self.commands)],
-                "method": "least squares over the first samples (superposed simulations), "
-                          "signals weighted by their noise"}
-
-
-def first_dir(d: np.ndarray) -> int:
-    """The first non-zero command (1 when there is none): the mode a closed loop starts in."""
-    nz = np.flatnonzero(np.asarray(d) != 0)
-    return int(d[nz[0]]) if len(nz) else 1
-
-
-def take(sim: SimResult, index) -> SimResult:
-    """The result at the samples ``index`` (a slice or an index array)."""
-    return replace(sim, **{f.name: getattr(sim, f.name)[index] for f in fields(sim)
-                           if isinstance(getattr(sim, f.name), np.ndarray)})
-
-
-def drop_lead(sim: SimResult, m: int) -> SimResult:
-    """The result without its first ``m`` samples (the pre-log instants)."""
-    return sim if m == 0 else take(sim, slice(m, None))
 
 
 def lead_offsets(delay_s: float, period_s: float) -> np.ndarray:
