@@ -7,8 +7,8 @@
 # For refactors that must not change behaviour.  REF's tree (and NEW's) is exported (git archive) to a
 # temporary folder and run with this checkout's .venv (PYTHONPATH puts that package first; its numba
 # kernels compile on the first run, a minute or two).  Both sides read NEW's raw/ and write to their
-# own processed/; every file is then compared byte for byte, except the .rrd files (Rerun stores its
-# own ids and times: compared with `rerun rrd compare` instead), stamp.json's code_version (a digest
+# own processed/; every file is then compared by scripts/same_outputs.py: byte for byte, except the .rrd files (Rerun stores its
+# own ids and times: compared with `rerun rrd compare` instead), stamp.json (it holds the code version, a digest
 # of the code itself) and the wall time `pdr discover --json` reports.
 # A branch behind main: compare with its fork point (REF = `git merge-base main HEAD`), or main with
 # the merge (`scripts/same_outputs.sh main $(git merge-tree --write-tree main HEAD)`).
@@ -50,19 +50,5 @@ for side in ref new; do
     rm -f "$out/.pdr.lock"
 done
 
-rrd_differ=0      # Rerun recordings hold their own ids and times: compared by `rerun rrd compare`, then set aside
-for a in $(cd "$work/out-ref" && find . -name '*.rrd' | sort); do
-    if ! "$here/.venv/bin/rerun" rrd compare "$work/out-ref/$a" "$work/out-new/$a" >/dev/null 2>&1; then
-        echo "rrd differs: $a"
-        rrd_differ=1
-    fi
-    rm -f "$work/out-ref/$a" "$work/out-new/$a"
-done
-
-if diff -r "$work/out-ref" "$work/out-new" >/dev/null && [ "$rrd_differ" = 0 ]; then
-    echo "same_outputs: identical ($(find "$work/out-new" -type f | wc -l) files byte for byte, code_version left out;" \
-         "every .rrd by rerun rrd compare)"
-else
-    diff -rq "$work/out-ref" "$work/out-new" | sed "s|$work/||g"
-    exit 1
-fi
+# byte for byte, stamps aside; every .rrd by `rerun rrd compare` (Rerun stores its own ids and times)
+PYTHONPATH="$here" "$py" "$here/scripts/same_outputs.py" "$work/out-ref" "$work/out-new"
