@@ -44,7 +44,7 @@ def derive_current_only(signals: pd.DataFrame, cfg: RigConfig, t: np.ndarray, no
 
     ``window``/``order``: the stage's current smoother, so energy here is the same figure as with an encoder.
     """
-    from pipeline.derive.stage import CURRENT_NOTE, UNCERTAINTY_NOTE, current_summary
+    from pipeline.derive.stage import CURRENT_NOTE, UNCERTAINTY_NOTE, current_summary, energy_refusal
 
     spec = cfg.plant_spec()
     not_computed = dict(SKIPPED)
@@ -68,11 +68,8 @@ def derive_current_only(signals: pd.DataFrame, cfg: RigConfig, t: np.ndarray, no
     if stats["stuck"]:
         notes.append(stats["stuck"])
     energy = uncertainty = None
-    if len(t) < 2:
-        not_computed["energy"] = "fewer than 2 samples: no interval to integrate over"
-    elif stats["constant"]:
-        not_computed["energy"] = (f"current_a is {current[0]:.4g} A at every sample (a stuck or disconnected "
-                                  "sensor): energy not computed")
+    if refusal := energy_refusal(t, current, stats):
+        not_computed["energy"] = refusal
     else:
         energy = run_electrical_energy(t, smooth, dirs, spec)
         energy["energy_paper_logged_current_j"] = run_electrical_energy(t, current, dirs, spec)["energy_paper_j"]

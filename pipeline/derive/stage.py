@@ -142,11 +142,8 @@ def derive_tables(signals: pd.DataFrame, cfg: RigConfig) -> DerivedTables:
         current_stats = current_summary(current, smooth, dirs)
         if current_stats["stuck"]:
             notes.append(current_stats["stuck"])
-        if len(t) < 2:
-            not_computed["energy"] = "fewer than 2 samples: no interval to integrate over"
-        elif current_stats["constant"]:
-            not_computed["energy"] = (f"current_a is {current[0]:.4g} A at every sample (a stuck or disconnected "
-                                      "sensor): energy not computed")
+        if refusal := energy_refusal(t, current, current_stats):
+            not_computed["energy"] = refusal
         else:
             energy = run_energy(t, smooth, omega, theta, dirs, spec)
             k0 = motor_on_start(dirs)
@@ -222,6 +219,16 @@ def current_summary(current: np.ndarray, smooth: np.ndarray, dirs: np.ndarray) -
     noise = current_noise_a(current, smooth, CURRENT_WINDOW, CURRENT_ORDER) if not constant else None
     return {"rms_a": rms, "noise_a": noise, "longest_repeat_samples": int(best), "constant": constant,
             "stuck": stuck}
+
+
+def energy_refusal(t: np.ndarray, current: np.ndarray, stats: dict[str, Any]) -> str | None:
+    """Why the run's energy cannot be integrated (``stats``: ``current_summary``'s), or None."""
+    if len(t) < 2:
+        return "fewer than 2 samples: no interval to integrate over"
+    if stats["constant"]:
+        return (f"current_a is {current[0]:.4g} A at every sample (a stuck or disconnected sensor): "
+                "energy not computed")
+    return None
 
 
 def _longest_repeat(x: np.ndarray, on: np.ndarray) -> tuple[int, int]:
