@@ -1,0 +1,180 @@
+"""A candidate effect's evidence in one round: fitted, then checked against every rule of
+``selection.py``'s docstring (noise, held out, BIC, interval, signature, size).  One candidate at a
+time; which candidates are tried, in which rounds, and what is adopted is ``selection.py``'s."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from pipeline.discover.candidates import Evaluator, Fit, Scan, fit_candidate, parameter_of
+from pipeline.discover.measurement import Measurement
+from pipeline.discover.residuals import events, residuals
+from pipeline.model.effects import CATALOGUE, Effect
+
+# Held-out MSE a candidate must remove from some signal, in that signal's noise variances.  The
+# current's floor is the sensor's own white noise, over hundreds of samples a quarter of it is a
+# many-sigma effect; the angle's floor counts only quantisation and the clock (the data's own
+# integration is never that exact), so an angle gain must be a whole noise variance.
+MIN_GAIN_FLOORS = {"theta": 1.0, "current": 0.25}
+MIN_HELDOUT_SHARE = 0.5      # share of held-out structure removed
+MAX_WORSENING_FLOORS = 2.0   # no signal may get worse than this on held-out data (a stacked partner may cost a little)
+MAX_DELTA_BIC = -10.0        # "strong" evidence on Kass & Raftery's scale
+SIGNATURE_SHRINK = 0.5       # the motivating pattern must at least halve ...
+SIGNATURE_NOISE = 3.0        # ... or fall to this many noise variances
+DOMINANT_SHARE = 0.8         # ... or the candidate remove this share of all held-out structure
+STRUCTURE_FLOORS = 25.0      # residual MSE above this many noise variances is structure
+MIN_SIZE_SHARE = 0.1         # smallest nameable effect, as a share of its typical size (MODEL.md's catalogue)
+
+
+@dataclass
+class Assessment:
+    """One candidate's fit and evidence in one round."""
+
+    fit: Fit
+    round: int
+    delta_bic: float
+    heldout_share: float                  # best share of held-out structure removed over the signals
+    heldout_gain_floors: float            # best held-out MSE removed, in noise variances
+    worst_worsening_floors: float
+    structure_left: float                 # held-out MSE above the noise left after it, in noise variances
+    signature_before: float
+    signature_after: float
+    checks: dict[str, bool] = field(default_factory=dict)
+
+    @property
+    def accepted(self) -> bool:
+        return all(self.checks.values())
+
+    @property
+    def score(self) -> float:
+        """The share of held-out structure the candidate removes (1 = all of it)."""
+        return self.heldout_share
+
+    def to_json(self) -> dict:
+        f = self.fit
+        return {
+            "name": f.name, "score": round(self.score, 4), "round": self.round,
+            "parameters": f.effect.parameters, "units": dict(CATALOGUE[f.name].UNITS),
+            "interval": {f.parameter: list(f.interval)}, "fold_estimates": {f.parameter: list(f.fold_values)},
+            "delta_bic": self.delta_bic, "heldout_nll_gain": f.heldout_nll_gain,
+            "heldout_gain_noise_floors": self.heldout_gain_floors,
+            "heldout_structure_left_noise_floors": self.structure_left,
+            "heldout_mse_before": f.heldout_mse_before, "heldout_mse_after": f.heldout_mse_after,
+            "signature_before": self.signature_before, "signature_after": self.signature_after,
+            "checks": {k: bool(v) for k, v in self.checks.items()}, "accepted": bool(self.accepted),
+        }
+
+
+@dataclass
+class Screened:
+    """A candidate whose coarse scan gained too little to be worth a full fit this round."""
+
+    name: str
+    round: int
+    value: float            # best scan point
+    scan_gain: float        # nll decrease at that point, all samples
+
+    accepted = False
+    score = 0.0
+
+    def to_json(self) -> dict:
+        p = parameter_of(self.name)
+        return {"name": self.name, "score": 0.0, "round": self.round, "parameters": {p: self.value},
+                "units": dict(CATALOGUE[self.name].UNITS), "scan_nll_gain": self.scan_gain,
+                "screened_out": True, "accepted": False}
+
+
+# ------------------------------------------------------------ signatures per effect
+
+def signature_energy(name: str, meas: Measurement, ev: Evaluator, effects: tuple[Effect, ...]) -> float:
+    """Mean energy of the residual pattern that points at ``name``, in noise variances (~1 for
+    pure noise): where the effect declares a local fingerprint (``Effect.SIGNATURE``), the
+    residual there -- right after each switch, near zero velocity, right after each angle zero
+    crossing, the bias of the current alone; an effect acting everywhere has no local window,
+    so the whole residual.
+
+    Local windows, not projections on w or dw/dt: when the base model drifts out of phase
+    with the recording, its residual is no small perturbation along any such direction."""
+    sim = ev.sim(effects)
+    res = residuals(meas, sim)
+    where = CATALOGUE[name].SIGNATURE
+    if where == "current_bias":
+        r = res.get("current")
+        return float(np.mean(r)) ** 2 / ev.floor["current"] * len(r) if r is not None else 0.0
+    if where == "after_switch":
+        m = _after(meas.n, events(meas).switches, 3)
+    elif where == "after_zero_crossing":
+        m = _after(meas.n, events(meas).zero_crossings, 3)
+    elif where == "low_speed":
+        w = sim.omega
+        wmax = float(np.nanmax(np.abs(w))) if np.any(np.isfinite(w)) else 1.0
+        m = np.abs(w) < 0.15 * wmax
+    else:
+        m = np.ones(meas.n, dtype=bool)
+    if not m.any():
+        return 0.0
+    return float(sum(np.mean(r[m] ** 2) / ev.floor[s] for s, r in res.items()))
+
+
+def _after(n: int, starts: np.ndarray, width: int) -> np.ndarray:
+    m = np.zeros(n, dtype=bool)
+    for s in starts:
+        m[s:s + width] = True
+    return m
+
+
+# ------------------------------------------------------------ evidence
+
+def assess(ev: Evaluator, meas: Measurement, effects: tuple[Effect, ...], name: str,
+           folds: tuple[np.ndarray, np.ndarray], round_: int,
+           scanned: Scan | None = None) -> Assessment:
+    fit = fit_candidate(ev, effects, name, folds, scanned=scanned)
+    trial = fit.effects
+    n_obs = meas.n * len(meas.signals)
+    nll_before = ev.nll(ev.sim(effects))
+    delta_bic = 2.0 * (fit.nll - nll_before) + 1.0 * np.log(n_obs)
+    share, gains, worse = heldout_share(fit, ev.floor)
+    left = sum(max(fit.heldout_mse_after[s] / fl - 1.0, 0.0) for s, fl in ev.floor.items())
+    sig_b = signature_energy(name, meas, ev, effects)
+    sig_a = signature_energy(name, meas, ev, trial)
+    a = Assessment(fit=fit, round=round_, delta_bic=float(delta_bic), heldout_share=share,
+                   heldout_gain_floors=max(gains.values()), worst_worsening_floors=worse,
+                   structure_left=float(left),
+                   signature_before=sig_b, signature_after=sig_a)
+    a.checks = {
+        "improvement_vs_noise": any(g >= MIN_GAIN_FLOORS[s] for s, g in gains.items()),
+        "heldout": a.heldout_share >= MIN_HELDOUT_SHARE and a.worst_worsening_floors <= MAX_WORSENING_FLOORS
+                   and fit.heldout_nll_gain > 0,
+        "bic": a.delta_bic <= MAX_DELTA_BIC,
+        "interval_excludes_null": fit.excludes_null,
+        # a candidate that removes most of the held-out structure has shown its pattern; its
+        # local window may then hold what another, stacked effect leaves behind
+        "signature_removed": (sig_a <= SIGNATURE_SHRINK * sig_b or sig_a <= SIGNATURE_NOISE
+                              or share >= DOMINANT_SHARE),
+        "size": nameable_size(fit.name, fit.value),
+    }
+    return a
+
+
+def nameable_size(name: str, value: float) -> bool:
+    """Whether ``value`` of the effect's first parameter is at least ``MIN_SIZE_SHARE`` of its typical size."""
+    p = CATALOGUE[name].PARAMS[0]
+    return abs(value - p.absent) >= MIN_SIZE_SHARE * abs(p.typical - p.absent)
+
+
+def heldout_share(fit: Fit, floor: dict[str, float]) -> tuple[float, dict[str, float], float]:
+    """(share of held-out structure removed, MSE gain per signal in noise variances, worst worsening).
+
+    Structure is MSE above the noise floor, in noise variances, in each signal
+    that has enough of it to be worth removing (``MIN_GAIN_FLOORS``); the share
+    is the best over those signals (an effect may live in one signal only, e.g.
+    a sensor offset in the current), 0 when there is nothing to explain.
+    """
+    ex_b = {s: fit.heldout_mse_before[s] / fl - 1.0 for s, fl in floor.items()}
+    ex_a = {s: fit.heldout_mse_after[s] / fl - 1.0 for s, fl in floor.items()}
+    gains = {s: ex_b[s] - ex_a[s] for s in floor}
+    structured = [s for s in floor if ex_b[s] >= MIN_GAIN_FLOORS[s]]
+    share = max((gains[s] / ex_b[s] for s in structured), default=0.0)
+    return float(min(share, 1.0)), {s: float(g) for s, g in gains.items()}, float(max(-g for g in gains.values()))
