@@ -31,7 +31,8 @@ from dataclasses import replace
 import numpy as np
 
 from pipeline.model.effects import PlantSpec
-from pipeline.model.simulate import SimResult, simulate
+from pipeline.model.loop import next_dir
+from pipeline.model.simulate import SimResult, simulate, with_lost_samples
 from pipeline.validate.start import Start, first_dir
 
 # Samples the estimate uses: the first 2 s (at least 20 samples).  x0 shows most there (the rig's
@@ -98,7 +99,10 @@ class _Problem:
         self.offset = 0.0                               # rad: the counter's zero off the springs' rest
         self.lead = lead_offsets(float(spec.Td), float(spec.period_s))
         self.m = len(self.lead)
-        self.t = np.concatenate([t[0] + self.lead, t[:n]])
+        # the sketch's own loop instants: a row lost over serial is simulated too (as ``Start.simulate``
+        # replays it), its command decided by the sketch's rule on the measured angle (``_loop_log``)
+        t_loop, _, self.kept = with_lost_samples(t[:n], np.zeros(n, dtype=np.int8))
+        self.t = np.concatenate([t[0] + self.lead, t_loop])
         self.log = np.zeros(n, dtype=np.int8)          # the logged command, set per estimate
         self.names = [s for s in ("theta", "current") if s in observed]
         ys, ok, which = [], [], []
@@ -114,13 +118,15 @@ class _Problem:
         self.current_rows = (np.array(self.names) == "current")[self.which].astype(float)
         self._runs: dict[bytes, SimResult] = {}
         self.theta_rows = (np.array(self.names) == "theta")[self.which].astype(float)
+        self.theta_measured = np.asarray(observed["theta"][0][:n], dtype=float) if "theta" in observed else None
 
     def run(self, z, commands, *, logged: bool = True) -> SimResult:
         """Replay from ``z`` under the pre-log ``commands`` and (``logged``) the logged ones, else motor off.
 
         Remembered by the exact inputs until ``forget_runs``: a Gauss-Newton refinement asks again for
         the state it has just tried or stepped from (its Jacobian's base point, the next call's start)."""
-        log = np.concatenate([np.asarray(commands, dtype=np.int8), self.log if logged else np.zeros_like(self.log)])
+        loop_log = self._loop_log(self.log) if logged else np.zeros(len(self.t) - self.m, dtype=np.int8)
+        log = np.concatenate([np.asarray(commands, dtype=np.int8), loop_log])
         key = np.asarray(z, dtype=float).tobytes() + log.tobytes()
         if key not in self._runs:
             self._runs[key] = simulate(self.spec, self.t, x0=tuple(z), dir0=first_dir(log), dir_log=log,
@@ -130,10 +136,33 @@ class _Problem:
     def forget_runs(self) -> None:
         self._runs.clear()
 
+    def _loop_log(self, log: np.ndarray) -> np.ndarray:
+        """The logged commands on the loop's instants.  A lost row between two equal commands held
+        that command; between two different ones, the reversal happened at a lost instant or at the
+        next logged one: the sketch's rule (``loop.next_dir``) on the measured angle interpolated
+        there, less the counter's offset, decides.  Fixed by the data, not by the model's angle, so
+        the replay stays affine in x0."""
+        kept = self.kept
+        if kept[-1] + 1 == len(kept):
+            return log
+        out = np.empty(len(self.t) - self.m, dtype=np.int8)
+        out[kept] = log
+        theta = self.theta_measured
+        for i in np.flatnonzero(np.diff(kept) > 1):
+            a, b = kept[i], kept[i + 1]
+            d = int(log[i])
+            for j in range(a + 1, b):
+                if d != int(log[i + 1]) and d != 0 and theta is not None:
+                    f = (j - a) / (b - a)
+                    angle = (1.0 - f) * theta[i] + f * theta[i + 1] - self.offset
+                    d = next_dir(d, float(angle), float(self.spec.guard_rad)) if np.isfinite(angle) else d
+                out[j] = d
+        return out
+
     def outputs(self, sim: SimResult, measured: bool = True) -> np.ndarray:
         """Model outputs at the real samples (``measured``: the current as the sensor reads it, + I0)."""
         m = self.m
-        cols = {"theta": sim.theta[m:], "current": sim.current[m:]}
+        cols = {"theta": sim.theta[m:][self.kept], "current": sim.current[m:][self.kept]}
         out = np.concatenate([cols[s] for s in self.names])
         return out + self.I0 * self.current_rows + self.offset * self.theta_rows if measured else out
 
