@@ -14,10 +14,13 @@ from pipeline.discover.residuals import events, residuals
 from pipeline.model.effects import CATALOGUE, Effect
 
 # Held-out MSE a candidate must remove from some signal, in that signal's noise variances.  The
-# current's floor is the sensor's own white noise, over hundreds of samples a quarter of it is a
-# many-sigma effect; the angle's floor counts only quantisation and the clock (the data's own
-# integration is never that exact), so an angle gain must be a whole noise variance.
+# current's floor is the sensor's own white noise, which the right model reaches: a gain there is
+# evidence once it is many sigmas over the recording, ``MIN_GAIN_CHI2`` in chi-square over its samples
+# (a sensor offset of a third of a noise sigma over 1,000 samples is ~100), and at most a quarter noise
+# variance however short the recording.  The angle's floor counts only quantisation and the clock (the
+# data's own integration is never that exact), so an angle gain must be a whole noise variance.
 MIN_GAIN_FLOORS = {"theta": 1.0, "current": 0.25}
+MIN_GAIN_CHI2 = {"current": 25.0}
 MIN_HELDOUT_SHARE = 0.5      # share of held-out structure removed
 MAX_WORSENING_FLOORS = 2.0   # no signal may get worse than this on held-out data (a stacked partner may cost a little)
 MAX_DELTA_BIC = -10.0        # "strong" evidence on Kass & Raftery's scale
@@ -135,7 +138,7 @@ def assess(ev: Evaluator, meas: Measurement, effects: tuple[Effect, ...], name: 
     n_obs = meas.n * len(meas.signals)
     nll_before = ev.nll(ev.sim(effects))
     delta_bic = 2.0 * (fit.nll - nll_before) + 1.0 * np.log(n_obs)
-    share, gains, worse = heldout_share(fit, ev.floor)
+    share, gains, worse = heldout_share(fit, ev.floor, meas.n)
     left = sum(max(fit.heldout_mse_after[s] / fl - 1.0, 0.0) for s, fl in ev.floor.items())
     sig_b = signature_energy(name, meas, ev, effects)
     sig_a = signature_energy(name, meas, ev, trial)
@@ -144,7 +147,7 @@ def assess(ev: Evaluator, meas: Measurement, effects: tuple[Effect, ...], name: 
                    structure_left=float(left),
                    signature_before=sig_b, signature_after=sig_a)
     a.checks = {
-        "improvement_vs_noise": any(g >= MIN_GAIN_FLOORS[s] for s, g in gains.items()),
+        "improvement_vs_noise": any(g >= min_gain(s, meas.n) for s, g in gains.items()),
         "heldout": a.heldout_share >= MIN_HELDOUT_SHARE and a.worst_worsening_floors <= MAX_WORSENING_FLOORS
                    and fit.heldout_nll_gain > 0,
         "bic": a.delta_bic <= MAX_DELTA_BIC,
@@ -164,17 +167,23 @@ def nameable_size(name: str, value: float) -> bool:
     return abs(value - p.absent) >= MIN_SIZE_SHARE * abs(p.typical - p.absent)
 
 
-def heldout_share(fit: Fit, floor: dict[str, float]) -> tuple[float, dict[str, float], float]:
+def min_gain(signal: str, n: int) -> float:
+    """MSE, in noise variances, that ``signal`` must gain (or keep, to be structure) over ``n`` samples."""
+    chi2 = MIN_GAIN_CHI2.get(signal)
+    return MIN_GAIN_FLOORS[signal] if chi2 is None else min(MIN_GAIN_FLOORS[signal], chi2 / max(n, 1))
+
+
+def heldout_share(fit: Fit, floor: dict[str, float], n: int) -> tuple[float, dict[str, float], float]:
     """(share of held-out structure removed, MSE gain per signal in noise variances, worst worsening).
 
     Structure is MSE above the noise floor, in noise variances, in each signal
-    that has enough of it to be worth removing (``MIN_GAIN_FLOORS``); the share
+    that has enough of it to be worth removing (``min_gain`` over the ``n`` samples); the share
     is the best over those signals (an effect may live in one signal only, e.g.
     a sensor offset in the current), 0 when there is nothing to explain.
     """
     ex_b = {s: fit.heldout_mse_before[s] / fl - 1.0 for s, fl in floor.items()}
     ex_a = {s: fit.heldout_mse_after[s] / fl - 1.0 for s, fl in floor.items()}
     gains = {s: ex_b[s] - ex_a[s] for s in floor}
-    structured = [s for s in floor if ex_b[s] >= MIN_GAIN_FLOORS[s]]
+    structured = [s for s in floor if ex_b[s] >= min_gain(s, n)]
     share = max((gains[s] / ex_b[s] for s in structured), default=0.0)
     return float(min(share, 1.0)), {s: float(g) for s, g in gains.items()}, float(max(-g for g in gains.values()))

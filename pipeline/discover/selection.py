@@ -2,8 +2,8 @@
 
 A candidate is added only when all of these hold (issue 6, step 3):
 
-1. noise:     on held-out cycles it removes at least ``MIN_GAIN_FLOORS`` noise
-              variances of mean squared error from some signal;
+1. noise:     on held-out cycles it removes at least ``min_gain`` noise variances of mean
+              squared error from some signal (in the current: a many-sigma gain over the recording);
 2. held out:  fitted on half the cycles, it removes at least ``MIN_HELDOUT_SHARE``
               of the structure (MSE above the noise floor) on the other half,
               without making any signal worse by more than ``MAX_WORSENING_FLOORS``;
@@ -37,7 +37,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from pipeline.discover.candidates import Evaluator, folds_by_cycle, parameter_of, prune, scan
-from pipeline.discover.evidence import (MAX_DELTA_BIC, MIN_GAIN_FLOORS, STRUCTURE_FLOORS, Assessment, Screened, assess,
+from pipeline.discover.evidence import (MAX_DELTA_BIC, STRUCTURE_FLOORS, Assessment, Screened, assess, min_gain,
                                          nameable_size)
 from pipeline.discover.joint import effect_intervals, joint_fit, sensitivity
 from pipeline.discover.measurement import Measurement, ambiguous_switches, settle_switches
@@ -45,13 +45,11 @@ from pipeline.discover.residuals import noise_floor
 from pipeline.discover.start_refit import refine_start
 from pipeline.model.effects import CATALOGUE, Effect
 
-# After an effect, a further round only while some signal keeps this much structure, in noise variances:
-# the current's floor is its sensor's white noise, which the right model reaches, so what a candidate
-# must remove (MIN_GAIN_FLOORS) is worth a round; the angle's counts quantisation and the clock's
-# truncation about the mid-step instants (``noise.sample_instants``), so one noise variance left is
-# structure too.  A near-zero effect that would absorb a count of drift is refused by its size
-# (MIN_SIZE_SHARE), not by this floor.
-ROUND_FLOORS = {"theta": 1.0, "current": MIN_GAIN_FLOORS["current"]}
+# After an effect, a further round only while some signal keeps structure a candidate would have to
+# remove to be named (``evidence.min_gain``): the current's floor is its sensor's white noise, which the
+# right model reaches; the angle's counts quantisation and the clock's truncation about the mid-step
+# instants (``noise.sample_instants``), so one noise variance left is structure too.  A near-zero effect
+# that would absorb a count of drift is refused by its size (MIN_SIZE_SHARE), not by this floor.
 NEAR_TIE = 2.0              # runner-up leaves at most twice the winner's held-out structure (+1 noise variance)
 MAX_EFFECTS = 3
 # A further round starts only if, at the last round's pace, discovery's work (``Evaluator.work``: simulated
@@ -120,11 +118,11 @@ def swap_twins(ev: Evaluator, effects: tuple[Effect, ...],
     return effects
 
 
-def worth_another_round(left: dict[str, float]) -> bool:
-    """Whether any signal keeps structure (MSE above its noise, in noise variances) worth another
-    round (``ROUND_FLOORS``).  A sensor offset of a noise sigma next to another effect is one noise
-    variance in the current, many sigmas over hundreds of samples."""
-    return any(v >= ROUND_FLOORS[s] for s, v in left.items())
+def worth_another_round(left: dict[str, float], n: int) -> bool:
+    """Whether any signal keeps structure (MSE above its noise, in noise variances, over ``n`` samples)
+    worth another round.  A sensor offset of half a noise sigma next to another effect is a quarter
+    noise variance in the current, many sigmas over hundreds of samples."""
+    return any(v >= min_gain(s, n) for s, v in left.items())
 
 
 def select(meas: Measurement, names: tuple[str, ...] | None = None) -> Selection:
@@ -146,7 +144,7 @@ def select(meas: Measurement, names: tuple[str, ...] | None = None) -> Selection
     stopped_for_time = False
     for round_ in range(1, MAX_EFFECTS + 1):
         remaining = [n for n in names if n not in {e.name for e in effects}]
-        if not remaining or (effects and not worth_another_round(excess(ev, effects))):
+        if not remaining or (effects and not worth_another_round(excess(ev, effects), meas.n)):
             break
         round_start = ev.work
         if round_ > 1 and round_start + last_round > WORK_BUDGET:
