@@ -94,7 +94,16 @@ def estimate_zero(values: dict[str, np.ndarray], cfg: RigConfig, source: str) ->
                           f"({method}), found {int(rest.sum())}; log a motor-off pre-roll or set zero_v in volts",
                           path=source, key="current_sensor.zero_v")
     v = volts[rest]
-    return ZeroEstimate(float(np.median(v)), float(np.std(v)), int(rest.sum()), method)
+    return ZeroEstimate(interquartile_mean(v), float(np.std(v)), int(rest.sum()), method)
+
+
+def interquartile_mean(v: np.ndarray) -> float:
+    """The mean of the middle half: robust to a garbled reading, as the median is, but not rounded to
+    a whole ADC step as the median of integer readings is (a step of the 20 A part is 49 mA: a
+    zero that far off is a current-sensor offset discovery would rightly name)."""
+    v = np.sort(np.asarray(v, dtype=float))
+    k = len(v) // 4
+    return float(np.mean(v[k:len(v) - k]))
 
 
 def rad_per_count(cfg: RigConfig) -> float:
