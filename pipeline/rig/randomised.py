@@ -157,7 +157,10 @@ def randomised_setup(rng: np.random.Generator) -> Draw:
     if outside == "armature_resistance":         # a hot winding: Ra well above the datasheet value
         plant_model = base.model.with_(Ra=base.model.Ra * float(rng.uniform(1.4, 1.8)))
     rest_logged = pre_roll_s - open_after_s >= 0.5
-    zero_v = "auto" if rest_logged and rng.random() < 0.3 else "calibrated"
+    # a sensor offset is the zero a user wrote down being off (``sensors.calibrated_zero_v``); an "auto"
+    # zero is measured from the data, so with one the hidden offset would not be in the recording
+    offset_hidden = any(e.name == "current_sensor_offset" for e in effects)
+    zero_v = "auto" if rest_logged and rng.random() < 0.3 and not offset_hidden else "calibrated"
     setup = RigSetup(effects=effects, config=config, duration_s=duration_s, pre_roll_s=pre_roll_s,
                      noise_v=float(rng.uniform(1.0, 4.0)) * ONE_ADC_STEP_V, zero_v=zero_v, artefacts=art,
                      seed=int(rng.integers(2**31)), open_after_s=open_after_s, first_dir=int(rng.choice((1, -1))),

@@ -178,3 +178,10 @@ def test_outside_effect_changes_only_the_plant():
     rec = make_recording(setup)
     assert tomllib.loads(rec.toml_text)["model"]["Ra"] == setup.config.model.Ra      # the user's datasheet value
     assert rec.truth_meta["plant"]["params"]["Ra"] == setup.plant_model.Ra > 1.3 * setup.config.model.Ra
+
+
+def test_a_hidden_sensor_offset_comes_with_a_written_zero(draws):
+    """The offset is the written zero being off; an "auto" zero is measured from the data and would hide it."""
+    with_offset = [d for d in draws if any(e.name == "current_sensor_offset" for e in d.effects)]
+    assert with_offset and all(d.setup.zero_v == "calibrated" for d in with_offset)
+    assert any(d.setup.zero_v == "auto" for d in draws)
