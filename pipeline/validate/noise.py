@@ -3,8 +3,12 @@
 A signal sampled every 50 ms is smooth at the sample scale (the rig's oscillation turns at
 ~2-3 rad/s, so a k-th difference shrinks it by about (0.15)^k), while white noise grows under
 differencing by a known factor: the k-th difference of noise of variance s^2 has variance
-C(2k, k) s^2.  So a robust scale of the k-th difference, divided by C(2k, k), is the variance
-of the white part; the median makes it blind to the few kinks at the controller's switches.
+C(2k, k) s^2.  So the k-th difference's mean square, divided by C(2k, k), is the variance of
+the white part, taken over the differences within ``TRIM`` robust sigmas (median absolute
+deviation) of their median: blind to the few kinks at the controller's switches, but a mean, not
+the median itself, whose scale reads quantised noise (a few distinct ADC codes) 13 % off on
+average against the virtual rig's truth over 60 randomised draws (the trimmed mean: 5 %), and
+the current's floor is what a sensor offset of a third of a noise sigma is measured against.
 The order is the signal's: the current is noisy and kinked at every switch, where a low order
 spreads each kink over fewer differences (against the virtual rig's true noise variance over 18
 recordings, 1-4x noise, 185/100/66 mV/A: order 3 read 0.97 of it with a spread of 0.13, order 4
@@ -26,11 +30,14 @@ import numpy as np
 
 CURRENT_ORDER = 3
 ANGLE_ORDER = 5
+TRIM = 4.0                          # robust sigmas of the differences kept for the current's mean square
 _MAD = 0.6744897501960817          # median |N(0,1)|
 
 
-def difference_noise(y: np.ndarray, order: int = CURRENT_ORDER) -> float:
-    """Variance of the white part of ``y``: robust scale of its ``order``-th difference.
+def difference_noise(y: np.ndarray, order: int = CURRENT_ORDER, trim: float | None = TRIM) -> float:
+    """Variance of the white part of ``y``: mean square of its ``order``-th difference within
+    ``trim`` robust sigmas (None: the robust scale itself, for the angle, whose smooth part leaks
+    into a mean square at a long sample period).
 
     Only runs of finite samples are differenced, so a missing value costs its
     neighbours rather than poisoning the estimate.
@@ -42,7 +49,11 @@ def difference_noise(y: np.ndarray, order: int = CURRENT_ORDER) -> float:
     d = d[valid]
     if len(d) < 3:
         return 0.0
-    sigma = np.median(np.abs(d - np.median(d))) / _MAD
+    centre = np.median(d)
+    sigma = np.median(np.abs(d - centre)) / _MAD
+    if trim is not None:
+        kept = d[np.abs(d - centre) <= trim * sigma]
+        return float(np.mean(kept * kept) / comb(2 * order, order)) if len(kept) >= 3 else 0.0
     return float(sigma * sigma / comb(2 * order, order))
 
 
@@ -69,15 +80,15 @@ def quantum(y: np.ndarray) -> float:
     return float(np.median(gaps[whole & (np.round(ratio) == 1)]))
 
 
-def signal_noise(y: np.ndarray, order: int = CURRENT_ORDER) -> float:
+def signal_noise(y: np.ndarray, order: int = CURRENT_ORDER, trim: float | None = TRIM) -> float:
     """Per-sample noise variance of a logged signal: its white part, at least its quantisation."""
     q = quantum(y)
-    return max(difference_noise(y, order), q * q / 12.0)
+    return max(difference_noise(y, order, trim), q * q / 12.0)
 
 
 def angle_noise(theta: np.ndarray, omega: np.ndarray, t: np.ndarray) -> float:
     """The angle's noise variance: its own (``ANGLE_ORDER``) plus the clock's truncation."""
-    return signal_noise(theta, ANGLE_ORDER) + timing_noise(omega, t)
+    return signal_noise(theta, ANGLE_ORDER, trim=None) + timing_noise(omega, t)
 
 
 def clock_step(t: np.ndarray) -> float:
