@@ -121,7 +121,7 @@ class Measurement:
                 # current (a motor-off lead-in): the whole segment's mean misfit pins it
                 start, offset = estimator.start(d, spec.I0), None
                 for _ in range(OFFSET_ITERATIONS):
-                    sim = start.simulate(plant, self.t_fit, d, closed_loop=False)
+                    sim = start.simulate(plant, self.t_fit, d, closed_loop=False, angle=self.guard_angle)
                     mean = float(np.mean(self.theta - sim.theta))
                     if not np.isfinite(mean):
                         break
@@ -142,7 +142,7 @@ class Measurement:
     def simulate_ways(self, spec: PlantSpec, dir_log: np.ndarray) -> dict[str, SimResult]:
         """Closed loop and replay at the recording's own instants, from its start (validation's two ways)."""
         start = self.x0(spec, dir_log)
-        return {way: start.simulate(spec, self.t, dir_log, closed_loop=way == "closed_loop")
+        return {way: start.simulate(spec, self.t, dir_log, closed_loop=way == "closed_loop", angle=self.guard_angle)
                 for way in ("closed_loop", "replay")}
 
     def replay(self, spec: PlantSpec, x0: Start | tuple[float, float, float] | None = None,
@@ -156,7 +156,14 @@ class Measurement:
             start = self.x0(spec, d)        # the start depends on the command replayed (an inferred onset)
         else:
             start = x0 if isinstance(x0, Start) else Start.given(x0)
-        return start.simulate(spec, self.t_fit[:m], d[:m], closed_loop=False)
+        angle = None if self.guard_angle is None else self.guard_angle[:m]
+        return start.simulate(spec, self.t_fit[:m], d[:m], closed_loop=False, angle=angle)
+
+    @property
+    def guard_angle(self) -> np.ndarray | None:
+        """The measured angle in the guard's frame, which decides the command at a lost row
+        (``with_lost_samples``); unknown after a board reset (the counter's zero moved)."""
+        return self.theta if self.angle_reference_known else None
 
 
 
@@ -195,6 +202,10 @@ def settle_switches(meas: Measurement, nll) -> Measurement:
         if d[k] != d[k - 1] and d[k - 1] != 0:          # switched at k: perhaps only at k + 1
             alt = d.copy()
             alt[k] = d[k - 1]
+            options.append(alt)
+        elif d[k + 1] != d[k] and d[k] != 0:            # switched at k + 1 (settled so before): perhaps at k
+            alt = d.copy()
+            alt[k] = d[k + 1]
             options.append(alt)
         elif d[k + 1] == d[k]:                          # did not switch at k: perhaps it did
             alt = d.copy()

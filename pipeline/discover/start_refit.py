@@ -38,7 +38,7 @@ def refine_start(ev: Evaluator, effects: tuple[Effect, ...]) -> Start | None:
                        else start.x0)
 
     def stacked(z: np.ndarray, weights: dict[str, float] | None = None) -> tuple[np.ndarray, dict[str, float]]:
-        sim = at(z).simulate(spec, meas.t_fit, command, closed_loop=False)
+        sim = at(z).simulate(spec, meas.t_fit, command, closed_loop=False, angle=meas.guard_angle)
         sim = replace(sim, current_measured=sim.current + full.I0)
         res = residuals(meas, sim)
         w = weights or {s: 1.0 / np.sqrt(float(np.mean(r * r)) + 1e-3 * ev.floor[s]) for s, r in res.items()}

@@ -105,11 +105,19 @@ def _controller(spec: PlantSpec, t, duration: float, dir0: int, dir_log, closed_
                               guard == "continuous" and bool(closed_loop))
 
 
-def with_lost_samples(t: np.ndarray, dir_log: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def with_lost_samples(t: np.ndarray, dir_log: np.ndarray, angle: np.ndarray | None = None,
+                      guard: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The sketch's own loop instants: every gap of about k sample periods (k >= 2, a row lost over
-    serial) gets its k - 1 missing instants back, evenly spaced, with an ``UNKNOWN`` command (the
-    sketch decided something there: the simulation's controller decides it again).  Returns
-    (instants, commands, index of each logged sample among them); without gaps, the inputs."""
+    serial) gets its k - 1 missing instants back, evenly spaced.  Returns (instants, commands, index of
+    each logged sample among them); without gaps, the inputs.
+
+    The sketch decided something at a lost instant.  Between two equal logged commands it held that
+    one (a reversal there would need the other guard within one row).  Between two different ones
+    it reversed at a lost instant or at the next logged one: with the measured ``angle`` (one per
+    logged sample, in the guard's frame), the sketch's rule on it interpolated there (a cubic through
+    two logged samples each side) decides, so a
+    replay is fixed by the data and smooth in the model's parameters; without it, an ``UNKNOWN``
+    command, which the simulation's controller decides on the model's angle."""
     t = np.asarray(t, dtype=float)
     h = np.diff(t)
     if len(h) < 2:
@@ -125,6 +133,21 @@ def with_lost_samples(t: np.ndarray, dir_log: np.ndarray) -> tuple[np.ndarray, n
     for i in np.flatnonzero(missing):
         m = missing[i]
         t_full[kept[i] + 1:kept[i + 1]] = t[i] + h[i] * np.arange(1, m + 1) / (m + 1)
+        before, after = int(dir_log[i]), int(dir_log[i + 1])
+        if before == after and before != loop.UNKNOWN:
+            d_full[kept[i] + 1:kept[i + 1]] = before
+        elif angle is not None and before in (-1, 1):
+            near = np.arange(max(i - 1, 0), min(i + 3, len(t)))        # two logged samples each side
+            near = near[np.isfinite(angle[near])]
+            if i not in near or i + 1 not in near:
+                continue
+            # the angle bends towards a guard (the motor is braking it): a cubic through the
+            # neighbours, not a chord, says whether the guard was reached at the lost instant
+            fit = np.polyfit(t[near] - t[i], angle[near], len(near) - 1)
+            d = before
+            for j in range(1, m + 1):
+                d = loop.next_dir(d, float(np.polyval(fit, t_full[kept[i] + j] - t[i])), guard)
+                d_full[kept[i] + j] = d
     return t_full, d_full, kept
 
 

@@ -86,7 +86,8 @@ def simulate_both(spec: PlantSpec, kin: pd.DataFrame, start: Start | None = None
     t = sample_instants(column(kin, "t_s", dtype=float))
     d = logged_dir(kin)
     start = initial_state(kin, spec) if start is None else start
-    return {way: start.simulate(spec, t, d, closed_loop=way == "closed_loop") for way in ways}
+    angle = column(kin, "theta_rad", dtype=float) if "theta_rad" in kin.columns else None
+    return {way: start.simulate(spec, t, d, closed_loop=way == "closed_loop", angle=angle) for way in ways}
 
 
 def switch_indices(d: np.ndarray) -> np.ndarray:

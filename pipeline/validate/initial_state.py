@@ -31,7 +31,6 @@ from dataclasses import replace
 import numpy as np
 
 from pipeline.model.effects import PlantSpec
-from pipeline.model.loop import next_dir
 from pipeline.model.simulate import SimResult, simulate, with_lost_samples
 from pipeline.validate.start import Start, first_dir
 
@@ -137,27 +136,13 @@ class _Problem:
         self._runs.clear()
 
     def _loop_log(self, log: np.ndarray) -> np.ndarray:
-        """The logged commands on the loop's instants.  A lost row between two equal commands held
-        that command; between two different ones, the reversal happened at a lost instant or at the
-        next logged one: the sketch's rule (``loop.next_dir``) on the measured angle interpolated
-        there, less the counter's offset, decides.  Fixed by the data, not by the model's angle, so
-        the replay stays affine in x0."""
-        kept = self.kept
-        if kept[-1] + 1 == len(kept):
+        """The logged commands on the loop's instants (``with_lost_samples``: a lost row's command by the
+        sketch's rule on the measured angle, less the counter's offset), fixed by the data, not by the
+        model's angle, so the replay stays affine in x0."""
+        if self.kept[-1] + 1 == len(self.kept):
             return log
-        out = np.empty(len(self.t) - self.m, dtype=np.int8)
-        out[kept] = log
-        theta = self.theta_measured
-        for i in np.flatnonzero(np.diff(kept) > 1):
-            a, b = kept[i], kept[i + 1]
-            d = int(log[i])
-            for j in range(a + 1, b):
-                if d != int(log[i + 1]) and d != 0 and theta is not None:
-                    f = (j - a) / (b - a)
-                    angle = (1.0 - f) * theta[i] + f * theta[i + 1] - self.offset
-                    d = next_dir(d, float(angle), float(self.spec.guard_rad)) if np.isfinite(angle) else d
-                out[j] = d
-        return out
+        angle = None if self.theta_measured is None else self.theta_measured - self.offset
+        return with_lost_samples(self.t[self.m:][self.kept], log, angle, float(self.spec.guard_rad))[1]
 
     def outputs(self, sim: SimResult, measured: bool = True) -> np.ndarray:
         """Model outputs at the real samples (``measured``: the current as the sensor reads it, + I0)."""

@@ -31,7 +31,8 @@ def test_replaying_the_closed_loops_commands_is_the_closed_loop_to_the_last_bit(
 
 def test_lost_rows_are_simulated_and_decided_by_the_sketchs_rule():
     """A recording missing rows (one lost at a switch among them): replay on the logged samples with the
-    lost instants put back and decided by the guard equals the full closed-loop run at those samples."""
+    lost instants put back and decided by the guard (on the model's angle, or on the measured one
+    interpolated) equals the full closed-loop run at those samples."""
     from pipeline.model.loop import UNKNOWN
     from pipeline.model.simulate import with_lost_samples
 
@@ -43,7 +44,12 @@ def test_lost_rows_are_simulated_and_decided_by_the_sketchs_rule():
     keep = np.setdiff1d(np.arange(len(t)), lost)
     t_loop, d_loop, kept = with_lost_samples(t[keep], full.dir[keep])
     assert np.allclose(t_loop, t) and np.array_equal(kept, keep)
-    assert set(d_loop[lost]) == {UNKNOWN} and np.array_equal(d_loop[keep], full.dir[keep])
+    assert d_loop[switch] == UNKNOWN and np.array_equal(d_loop[keep], full.dir[keep])
+    held_rows = lost[lost != switch]                                  # between equal commands: that one held
+    assert np.array_equal(d_loop[held_rows], full.dir[held_rows])
+    # with the measured angle, the sketch's rule on it decides the reversal, as the closed loop did
+    _, by_angle, _ = with_lost_samples(t[keep], full.dir[keep], full.theta[keep], spec.guard_rad)
+    assert np.array_equal(by_angle, full.dir)
     replay = simulate(spec, t_loop, dir_log=d_loop, closed_loop=False)
     assert np.array_equal(replay.dir, full.dir)                      # the lost reversal decided where it was
     np.testing.assert_allclose(replay.theta[kept], full.theta[keep], rtol=0, atol=1e-12)
