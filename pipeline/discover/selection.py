@@ -118,6 +118,34 @@ def swap_twins(ev: Evaluator, effects: tuple[Effect, ...],
     return effects
 
 
+def resettle(ev: Evaluator, effects: tuple[Effect, ...], raw: Measurement) -> tuple[Evaluator, tuple[Effect, ...]]:
+    """The ambiguous inferred switches as the angle reads them (``raw``) and decided again under the
+    adopted effects, from there and from the base model's settling, each refitted jointly; the best
+    replay wins.  The base model decided them before the rounds, and a missing effect can tip it
+    the wrong way (a constant torque: the pinion reached the guard one sample later than the base
+    model said), after which the effects fitted settle around the wrong timing; one sample of the
+    wrong command is a transient that outlasts hundreds of samples."""
+    meas = ev.meas
+    if not effects or not ambiguous_switches(meas):
+        return ev, effects
+    best, best_nll = (ev, effects), ev.nll(ev.sim(effects))
+    tried = [meas.dir]
+    for settled in (raw, *(settle_switches(m, lambda m: ev.nll(m.replay(m.spec(effects)))) for m in (meas, raw))):
+        if any(np.array_equal(settled.dir, d) for d in tried):
+            continue
+        tried.append(settled.dir)
+        moved = Evaluator(settled, ev.floor)
+        refit, value = effects, moved.nll(moved.sim(effects))
+        for _ in range(3):              # reweighted as the misfit shrinks (``joint_fit`` weights by it)
+            refit, before = joint_fit(moved, refit), value
+            value = moved.nll(moved.sim(refit))
+            if value > before - 1.0:
+                break
+        if value < best_nll:
+            best, best_nll = (moved, refit), value
+    return best
+
+
 def worth_another_round(left: dict[str, float], n: int) -> bool:
     """Whether any signal keeps structure (MSE above its noise, in noise variances, over ``n`` samples)
     worth another round.  A sensor offset of half a noise sigma next to another effect is a quarter
@@ -130,6 +158,7 @@ def select(meas: Measurement, names: tuple[str, ...] | None = None) -> Selection
     names = tuple(CATALOGUE) if names is None else names
     if not meas.angle_reference_known:
         names = tuple(n for n in names if not only_a_constant_torque(meas, n))
+    raw = meas
     if ambiguous_switches(meas):
         base_spec = meas.spec()
         probe = Evaluator(meas, noise_floor(meas, meas.replay(base_spec)))
@@ -178,6 +207,8 @@ def select(meas: Measurement, names: tuple[str, ...] | None = None) -> Selection
                         "runner_up_accepted": bool(runner.accepted)}
         effects = best.fit.effects
         last_round = ev.work - round_start
+    ev, effects = resettle(ev, effects, raw)
+    meas = ev.meas
     effects = swap_twins(ev, effects, rounds)
     kept = prune(ev, effects)
     while small := [e for e in kept if not nameable_size(e.name, e.value)]:
