@@ -21,6 +21,12 @@ from pipeline.model.effects import CATALOGUE, Effect
 # data's own integration is never that exact), so an angle gain must be a whole noise variance.
 MIN_GAIN_FLOORS = {"theta": 1.0, "current": 0.25}
 MIN_GAIN_CHI2 = {"current": 25.0}
+# The current's floor is itself an estimate (``noise.signal_noise``): over n samples its relative
+# variance is ~3/n (measured on quantised noise, 150-2000 samples), so that many noise variances of
+# the current's "structure" may be the floor's own error, which no effect removes; a held-out share is
+# taken of the structure beyond FLOOR_SIGMAS of it.
+FLOOR_RELATIVE_VARIANCE = 3.0
+FLOOR_SIGMAS = 2.0
 MIN_HELDOUT_SHARE = 0.5      # share of held-out structure removed
 MAX_WORSENING_FLOORS = 2.0   # no signal may get worse than this on held-out data (a stacked partner may cost a little)
 MAX_DELTA_BIC = -10.0        # "strong" evidence on Kass & Raftery's scale
@@ -173,17 +179,31 @@ def min_gain(signal: str, n: int) -> float:
     return MIN_GAIN_FLOORS[signal] if chi2 is None else min(MIN_GAIN_FLOORS[signal], chi2 / max(n, 1))
 
 
+def floor_error(signal: str, n: int) -> float:
+    """Excess MSE, in noise variances, that the floor's own estimate may account for (``FLOOR_SIGMAS``)."""
+    if signal not in MIN_GAIN_CHI2:
+        return 0.0
+    return FLOOR_SIGMAS * float(np.sqrt(FLOOR_RELATIVE_VARIANCE / max(n, 1)))
+
+
 def heldout_share(fit: Fit, floor: dict[str, float], n: int) -> tuple[float, dict[str, float], float]:
     """(share of held-out structure removed, MSE gain per signal in noise variances, worst worsening).
 
     Structure is MSE above the noise floor, in noise variances, in each signal
     that has enough of it to be worth removing (``min_gain`` over the ``n`` samples); the share
     is the best over those signals (an effect may live in one signal only, e.g.
-    a sensor offset in the current), 0 when there is nothing to explain.
+    a sensor offset in the current), 0 when there is nothing to explain.  Of a candidate that moves
+    the current alone, the structure the floor's own error may hold (``floor_error``) is not asked.
     """
     ex_b = {s: fit.heldout_mse_before[s] / fl - 1.0 for s, fl in floor.items()}
     ex_a = {s: fit.heldout_mse_after[s] / fl - 1.0 for s, fl in floor.items()}
     gains = {s: ex_b[s] - ex_a[s] for s in floor}
     structured = [s for s in floor if ex_b[s] >= min_gain(s, n)]
-    share = max((gains[s] / ex_b[s] for s in structured), default=0.0)
+
+    def structure(s: str) -> float:
+        # a candidate that moves this signal alone (a sensor's offset) is not asked for the floor's error
+        alone = all(gains[o] < min_gain(o, n) for o in floor if o != s)
+        return max(ex_b[s] - floor_error(s, n), gains[s], 1e-12) if alone else ex_b[s]
+
+    share = max((gains[s] / structure(s) for s in structured), default=0.0)
     return float(min(share, 1.0)), {s: float(g) for s, g in gains.items()}, float(max(-g for g in gains.values()))

@@ -114,24 +114,68 @@ def test_a_hot_winding_is_not_named_as_a_slightly_stiffer_spring(tmp_path):
     assert abs(spring["parameters"]["k_scale"] - 1.0) < 0.03 and not spring["checks"]["size"]
 
 
-def test_a_sensor_offset_under_half_a_noise_sigma_is_named_over_a_long_recording(tmp_path):
-    """Randomised draw 173 (seed 15): a -85 mA sensor offset under 0.27 A of noise (the 30 A part, 3.6x
-    the noise), 1,193 samples: a tenth of a noise variance per sample, ~100 in chi-square over the
-    recording.  A quarter noise variance per sample was asked of the current, and it was called
-    ``none``.  A row lost at the first reversal also bent the start (a transient over 40 s)."""
+def _randomised(index: int, tmp_path) -> tuple:
+    """Randomised draw ``index`` (seed 15) through CSV, ingest, derive and discovery of its longest run."""
     import numpy as np
 
     from pipeline.derive.stage import derive_run
+    from pipeline.discover.cli import _samples
     from pipeline.discover.stage import discover_run
     from pipeline.ingest.stage import ingest_recording
     from pipeline.rig.randomised import randomised_setup
     from pipeline.rig.recording import make_recording, write_recording
 
-    draw = randomised_setup(np.random.default_rng([15, 173]))
-    (truth,) = draw.effects
-    write_recording(make_recording(draw.setup), tmp_path / "raw", "offset")
-    (paths,) = ingest_recording(tmp_path / "raw" / "offset.csv", tmp_path / "processed").runs
-    derive_run(paths)
-    _, doc = discover_run(paths)
-    assert doc["verdict"] == "explained" and [e["name"] for e in doc["effects"]] == [truth.name]
-    assert doc["effects"][0]["parameters"]["I0"] == pytest.approx(truth.parameters["I0"], rel=0.1)
+    draw = randomised_setup(np.random.default_rng([15, index]))
+    write_recording(make_recording(draw.setup), tmp_path / "raw", "r")
+    runs = ingest_recording(tmp_path / "raw" / "r.csv", tmp_path / "processed").runs
+    for paths in runs:
+        derive_run(paths)
+    _, doc = discover_run(max(runs, key=lambda p: _samples(p.kinematics)))
+    return draw, doc
+
+
+def _named_right(draw, doc) -> None:
+    truth = {e.name: next(iter(e.parameters.values())) for e in draw.effects}
+    found = {e["name"]: next(iter(e["parameters"].values())) for e in doc["effects"]}
+    assert doc["verdict"] == "explained" and set(found) == set(truth), (doc["verdict"], found)
+    for name, value in truth.items():
+        assert found[name] == pytest.approx(value, rel=0.1), name
+
+
+def test_a_sensor_offset_under_half_a_noise_sigma_is_named_over_a_long_recording(tmp_path):
+    """Randomised draw 173 (seed 15): a -85 mA sensor offset under 0.27 A of noise (the 30 A part, 3.6x
+    the noise), 1,193 samples: a tenth of a noise variance per sample, ~100 in chi-square over the
+    recording.  A quarter noise variance per sample was asked of the current, and it was called
+    ``none``.  A row lost at the first reversal also bent the start (a transient over 40 s)."""
+    _named_right(*_randomised(173, tmp_path))
+
+
+def test_switches_read_off_the_angle_are_settled_again_under_the_effects_found(tmp_path):
+    """Randomised draw 4 (seed 15): a constant load torque, no ``dir`` column.  Four reversals were read
+    off the angle within half a count of the guard; the base model, lacking the torque, settled three
+    of them a sample late, and with the torque found one sample of the wrong command left a transient
+    of 2e4 noise variances (``unexplained``)."""
+    _named_right(*_randomised(4, tmp_path))
+
+
+def test_a_row_lost_at_a_reversal_is_decided_by_the_measured_angle(tmp_path):
+    """Randomised draw 8 (seed 15): a voltage drop beside a load torque, no ``dir``, 112 rows lost.  A
+    lost row's command decided on the model's angle made the replay jump as a parameter moved the
+    angle across the guard there (3,800 in log-likelihood between two torques 1 % apart), and the joint
+    fit stopped at a torque 8 % off (``unexplained``)."""
+    _named_right(*_randomised(8, tmp_path))
+
+
+def test_a_sensor_offset_is_not_asked_to_remove_the_floors_own_error(tmp_path):
+    """Randomised draw 242 (seed 15): backlash and a 0.11 A offset on a 322-sample segment after a board
+    reset.  The current's floor is itself estimated, to ~sqrt(3/n) (10 % here): the true model left 0.18
+    noise variances of "structure", and the offset, removing 0.21 of 0.43, missed the held-out half."""
+    _named_right(*_randomised(242, tmp_path))
+
+
+def test_an_effect_that_moves_the_angle_too_is_asked_for_all_the_currents_structure(tmp_path):
+    """Randomised draw 179 (seed 15): a hot winding (outside the catalogue).  A voltage drop removes the
+    current's little structure and a fifth of the angle's; excusing it the floor's error, as a sensor
+    offset is, named it."""
+    draw, doc = _randomised(179, tmp_path)
+    assert draw.outside and doc["verdict"] == "unexplained" and doc["effects"] == []
