@@ -147,3 +147,38 @@ def test_a_constant_load_torque_is_not_superposed_once_per_unit_state():
     kin, truth, _ = _opened_at(spec, 137, seed=5)
     start = initial_state(kin, spec)
     assert np.all(np.abs(np.array(start.x0) - truth) <= np.array([3e-3, 0.02, 2e-5]))
+
+
+def test_a_lost_row_between_agreeing_commands_held_that_command():
+    """A row lost over serial: when the commands logged on both sides agree the sketch held it (a
+    reversal and back needs both guards); only a gap at a reversal is left to the model's controller,
+    whose guard is in the model's frame (after a board reset not the sketch's counter's)."""
+    from pipeline.model import loop
+    from pipeline.model.simulate import with_lost_samples
+    from pipeline.validate.start import held_through_gaps
+
+    t = np.array([0.0, 0.05, 0.15, 0.2, 0.3, 0.35, 0.4])
+    d = np.array([1, 1, 1, -1, -1, -1, -1], dtype=np.int8)
+    _, d_loop, kept = with_lost_samples(t, d)
+    assert np.count_nonzero(d_loop == loop.UNKNOWN) == 2
+    held = held_through_gaps(d_loop)
+    assert held.tolist() == [1, 1, 1, 1, -1, -1, -1, -1, -1]      # the gap 0.05-0.15 held +1, 0.2-0.3 held -1
+    gap_at_reversal = np.array([1, 1, -1, -1, -1, -1, -1], dtype=np.int8)
+    still = held_through_gaps(with_lost_samples(t, gap_at_reversal)[1])
+    assert still[2] == loop.UNKNOWN and still[5] == -1           # 0.05 -> 0.15 reversed: the model decides
+
+
+def test_a_reversal_at_a_lost_row_is_decided_on_the_measured_angle():
+    """A lost row across a reversal: the sketch reversed where its own count reached the guard, which
+    the measured angle either side tells (interpolated), whatever frame the model's angle is in."""
+    from pipeline.model.simulate import with_lost_samples
+    from pipeline.validate.start import decided_in_gaps, held_through_gaps
+
+    t = np.array([0.0, 0.1, 0.2, 0.4, 0.5, 0.6])              # the row at 0.3 lost
+    d = np.array([1, 1, 1, -1, -1, -1], dtype=np.int8)
+    t_loop, d_loop, kept = with_lost_samples(t, d)
+    d_loop = held_through_gaps(d_loop)
+    rising = 0.5 + 2.0 * t                                    # 1.1 at the lost row: past a 1.0 guard
+    assert decided_in_gaps(t_loop, d_loop, kept, t, rising, 1.0)[3] == -1
+    late = 0.2 + 2.0 * t                                      # 0.8 there: it reversed only at 0.4
+    assert decided_in_gaps(t_loop, d_loop, kept, t, late, 1.0)[3] == 1
