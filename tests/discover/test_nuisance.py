@@ -112,3 +112,26 @@ def test_a_hot_winding_is_not_named_as_a_slightly_stiffer_spring(tmp_path):
     assert doc["verdict"] == "unexplained" and doc["effects"] == []
     spring = next(c for c in doc["candidates"] if c["name"] == "spring_stiffness")
     assert abs(spring["parameters"]["k_scale"] - 1.0) < 0.03 and not spring["checks"]["size"]
+
+
+def test_a_segment_opening_at_rest_after_a_reset_without_dir(tmp_path):
+    """Without a dir column, a segment after a board reset opens with the motor off while the pinion
+    still creeps on its springs (here 0.02 rad/s, 0.17 rad from their rest after a 10 s gap): the motor's
+    start is the drive's, not the creep's first count, and the counter's offset is pinned by the whole
+    segment, not by the first seconds (where it reads like where the springs hold the pinion).  Both
+    wrong, this clean segment left 33,000 noise variances of angle structure."""
+    from pipeline.derive.stage import derive_run
+    from pipeline.discover.stage import discover_run
+    from pipeline.ingest.stage import ingest_recording
+    from pipeline.rig.recording import RigSetup, make_recording, write_recording
+    from pipeline.rig.serial import Artefacts
+
+    setup = RigSetup(duration_s=30.0, artefacts=Artefacts(dir_column=False, reset_after_s=8.0, reset_gap_s=10.0))
+    rec = make_recording(setup, seed=3)
+    assert abs(rec.truth_meta["segments"][1]["theta_ref_rad"]) > 0.1
+    write_recording(rec, tmp_path / "raw", "creep")
+    _, after = ingest_recording(tmp_path / "raw" / "creep.csv", tmp_path / "processed").runs
+    derive_run(after)
+    _, doc = discover_run(after)
+    assert doc["verdict"] == "none" and not doc["effects"], (doc["effects"], doc["structure_after"])
+    assert abs(doc["motor_start_shift_samples"]["base"]) <= 2       # the onset found is the drive's
