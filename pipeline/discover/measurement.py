@@ -260,10 +260,6 @@ def settle_switches(meas: Measurement, nll) -> Measurement:
             alt = d.copy()
             alt[k] = d[k - 1]
             options.append(alt)
-        elif d[k + 1] != d[k] and d[k] != 0:            # switched only at k + 1: perhaps already at k
-            alt = d.copy()
-            alt[k] = d[k + 1]
-            options.append(alt)
         elif d[k + 1] == d[k]:                          # did not switch at k: perhaps it did
             alt = d.copy()
             g_sign = 1 if meas.theta[k] > 0 else -1

@@ -21,7 +21,6 @@ from dataclasses import replace
 import numpy as np
 
 from pipeline.discover.candidates import ONSET_SHIFTS, Evaluator
-from pipeline.discover.measurement import settle_switches
 from pipeline.discover.residuals import residuals
 from pipeline.model.effects import Effect
 from pipeline.validate.initial_state import STATE_SCALES
@@ -47,23 +46,23 @@ def _replayed_nll(ev: Evaluator, effects: tuple[Effect, ...], command: np.ndarra
 
 
 def _command_on_the_whole_run(ev: Evaluator, effects: tuple[Effect, ...]) -> np.ndarray:
-    """The command to replay under ``effects``: the logged one; or, inferred, each ambiguous switch
-    (``settle_switches``: decided in the rounds under the rig's own model), then the onset
-    (``ONSET_SHIFTS``), that replay the whole recording best under ``effects``.  After a reset the counter's offset is
-    fitted with each onset (either bends the other) and the best one's held."""
+    """The command to replay under ``effects``: the logged one; or, with an inferred onset, the onset
+    (``ONSET_SHIFTS``) that replays the whole recording best under ``effects``.  After a reset the
+    counter's offset is fitted with each onset (either bends the other) and the best one's held."""
     meas = ev.meas
     full = meas.spec(effects)
     chosen = ev.command_for(effects)
+    began = replace(meas, dir=chosen)          # its onset is the chosen one
+    k0 = began.onset
+    if k0 is None and meas.angle_reference_known:
+        return chosen
 
     def trial(d: np.ndarray) -> tuple[float, float | None]:
         offset = meas.segment_offset(full, d)
         start = None if offset is None else meas.start_with_offset(full, d, offset)
         return _replayed_nll(ev, effects, d, start), offset
 
-    settled = settle_switches(replace(meas, dir=chosen), lambda m: _replayed_nll(ev, effects, m.dir)).dir
-    began = replace(meas, dir=settled)          # its onset is the chosen one
-    k0 = began.onset
-    best, (best_nll, best_offset) = settled, trial(settled)
+    best, (best_nll, best_offset) = chosen, trial(chosen)
     for shift in ONSET_SHIFTS if k0 is not None else ():
         d = began.with_onset(k0 + shift)
         if shift != 0 and (tried := trial(d))[0] < best_nll:
