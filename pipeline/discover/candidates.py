@@ -91,7 +91,9 @@ class Evaluator:
     def command(self, spec: PlantSpec, x0: tuple[float, float, float]) -> np.ndarray:
         """The command sequence to replay: the logged one, or -- when the motor's start is only
         inferred -- the start (within ``ONSET_SHIFTS`` samples) that fits this model best over
-        the first phase.  Remembered per plant, so the final report uses the same one."""
+        the first phase: every shift for the first model, then a downhill search from the last
+        model's (each shift costs a start estimate, Gauss-Newton for a Coulomb or backlash plant).
+        Remembered per plant, so the final report uses the same one; ``use_command`` replaces it."""
         k0 = self.meas.onset
         if k0 is None:
             return self.commands.get(spec, self.meas.dir)     # one chosen on the whole run (start_refit)

@@ -113,8 +113,9 @@ class Measurement:
                 self._starts[key] = estimator.start(d, spec.I0)
             elif self._offsets:
                 # the offset is the counter's, one per segment: estimated under the first model asked
-                # (the base), then held, as the angle residual is taken about its own mean anyway;
-                # re-estimating it for every candidate's plant tripled each start's cost
+                # (the base), then held, as the angle residual is taken about its own mean anyway
+                # (re-estimating it for every candidate's plant tripled each start's cost), and fitted
+                # again under the final model (``discover.start_refit``)
                 self._starts[key] = estimator.start(d, spec.I0, offset=self._offsets["segment"])
             else:
                 # the first seconds alone barely tell the counter's offset from where the springs hold
