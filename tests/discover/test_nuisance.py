@@ -168,3 +168,28 @@ def test_after_a_reset_the_command_is_decided_in_the_counters_frame_and_on_the_w
     assert found.keys() == expected.keys()
     for name, value in expected.items():
         assert found[name] == pytest.approx(value, rel=0.01)
+
+
+def test_a_start_re_estimated_for_another_onset_keeps_the_sensor_offset(tmp_path):
+    """Without dir the motor's onset is a nuisance: a model is replayed under shifted onsets, each from
+    a start estimated for it, under the model's own sensor offset (not none: the start's current
+    would take some of the offset up)."""
+    import numpy as np
+    from dataclasses import replace
+
+    from pipeline.discover.measurement import measurement_from_kinematics
+    from pipeline.rig.serial import Artefacts
+    from tests.discover.synthetic import rig_kinematics
+
+    offset = make_effect("current_sensor_offset", {"I0": 0.15})
+    kin, cfg, _ = rig_kinematics((offset,), seed=2, work=tmp_path, duration_s=8.0,
+                                 artefacts=Artefacts(dir_column=False))
+    meas = measurement_from_kinematics(kin, cfg, "r")
+    assert meas.onset is not None                                   # a motor-off lead-in, the onset inferred
+    spec = meas.spec((offset,))
+    plant = replace(spec, I0=0.0)
+    earlier = meas.with_onset(meas.onset - 2)
+    replayed = meas.replay(plant, meas.x0(spec), earlier)           # as the Evaluator replays a shifted onset
+    own = meas.x0(spec, earlier)
+    assert own.current_offset == 0.15
+    assert np.array_equal(replayed.current, meas.run(own, plant, earlier).current)
