@@ -34,7 +34,7 @@ def infer_dir(t_s: np.ndarray, theta_rad: np.ndarray, guard_rad: float) -> np.nd
     out = np.empty(len(theta), dtype=np.int8)
     if len(theta) == 0:
         return out
-    moved = np.flatnonzero(theta != theta[0])
+    moved = _departure(theta)
     beyond = np.flatnonzero(np.abs(theta) >= guard_rad)
     if len(beyond):
         d = -1 if theta[beyond[0]] <= -guard_rad else 1
@@ -48,7 +48,25 @@ def infer_dir(t_s: np.ndarray, theta_rad: np.ndarray, guard_rad: float) -> np.nd
     return out
 
 
-ONSET_FIT_S = 0.3       # s after the first motion over which theta - theta0 ~ c (t - t_on)^3 holds
+# The drive has taken over once the angle is this far from where the recording started: further
+# than a pinion settling on its springs creeps (a few counts over seconds, after a board reset's
+# unpowered gap), and reached within a few tenths of a second of a motor start.
+DEPARTURE_RAD = 0.05
+DEPARTURE_COUNTS = 4
+# Faster than this before the onset is motion, not creep (settling creeps at ~0.01 rad/s, a drive moves
+# at rad/s): a recording whose angle is best fitted with a faster drift was already moving.
+MAX_CREEP_RAD_S = 0.1
+# Candidate onsets before the first sample (in periods): a recording already moving fits one of these.
+BEFORE_START = 3
+
+
+def _departure(theta: np.ndarray) -> np.ndarray:
+    """Samples at which the angle is at least ``DEPARTURE_RAD`` (and ``DEPARTURE_COUNTS`` counts) from
+    its first value, or, when it never gets so far, at which it differs from it at all."""
+    steps = np.abs(np.diff(theta))
+    count = float(np.min(steps[steps > 0])) if np.any(steps > 0) else 0.0
+    away = np.flatnonzero(np.abs(theta - theta[0]) >= max(DEPARTURE_RAD, DEPARTURE_COUNTS * count))
+    return away if len(away) else np.flatnonzero(theta != theta[0])
 
 
 def motor_onset(t: np.ndarray, theta: np.ndarray) -> int:
@@ -56,25 +74,33 @@ def motor_onset(t: np.ndarray, theta: np.ndarray) -> int:
 
     From rest the current ramps as u/La t, so the angle grows as c (t - t_on)^3
     for the first few tenths of a second (back-EMF and springs are still
-    negligible): one count shows only ~2 samples after the command.  The cube
-    root of the angle is therefore linear in time; its zero is the onset.  A
-    recording already moving at its start (or never moving) has onset 0.
+    negligible): one count shows only ~2 samples after the command.  Before the
+    onset the pinion may still creep (settling on its springs after a board
+    reset's unpowered gap: a count or two, either way), so the angle up to its
+    departure (``DEPARTURE_RAD``) is fitted as a + b t + c (t - t_on)_+^3, linear
+    in (a, b, c), for every candidate t_on; the best one with a creep's drift b
+    (``MAX_CREEP_RAD_S``) and a departure mostly the cube's is the onset.  A recording already moving at its start
+    (or never departing) has onset 0.
     Coulomb stiction or a loop delay hide the first samples of drive, so on
     such rigs the onset comes out one or two samples late (virtual rig:
     exact without them, 1-2 samples late with Tc = 6e-4 N m or Td = 50 ms).
     """
-    moved = np.flatnonzero(theta != theta[0])
-    if len(moved) == 0 or moved[0] <= 2:
+    away = _departure(theta)
+    if len(away) == 0 or away[0] <= 2:
         return 0
-    m = int(moved[0])
-    sel = np.flatnonzero((np.arange(len(t)) >= m) & (t <= t[m] + ONSET_FIT_S))
-    if len(sel) >= 3:
-        y = np.cbrt(theta[sel] - theta[0])
-        slope, icpt = np.polyfit(t[sel], y, 1)
-        if slope * y[-1] > 0:
-            t_on = -icpt / slope
-            return int(np.clip(np.argmin(np.abs(t - t_on)), 0, m - 1))
-    return m - 1
+    big = int(away[0])
+    tt, y = t[:big + 1] - t[0], theta[:big + 1] - theta[0]
+    period = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+    candidates = np.concatenate([-period * np.arange(BEFORE_START, 0, -1), tt[:big]])
+    best, best_sse = 0.0, np.inf
+    for t_on in candidates:
+        X = np.column_stack([np.ones_like(tt), tt, np.clip(tt - t_on, 0.0, None) ** 3])
+        coef, *_ = np.linalg.lstsq(X, y, rcond=None)
+        sse = float(np.sum((X @ coef - y) ** 2))
+        drive = coef[2] * max(tt[-1] - t_on, 0.0) ** 3         # the cube's share of the departure
+        if sse < best_sse and drive / y[-1] >= 0.5 and abs(coef[1]) <= MAX_CREEP_RAD_S:
+            best, best_sse = float(t_on), sse
+    return int(np.clip(np.argmin(np.abs(tt - best)), 0, big - 1))
 
 
 def phase_bounds(dirs: np.ndarray) -> np.ndarray:

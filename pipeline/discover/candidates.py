@@ -60,6 +60,7 @@ class Evaluator:
         self.work = 0                        # simulated samples, each replay charged REPLAY_OVERHEAD more
         self.failures: list[str] = []
         self.commands: dict[PlantSpec, np.ndarray] = {}
+        self._onset_shift: int | None = None   # the shift the last model's onset search ended on
 
     def sim(self, effects: tuple[Effect, ...]) -> SimResult:
         spec = self.meas.spec(effects)
@@ -79,30 +80,54 @@ class Evaluator:
             return base
         return replace(base, current_measured=base.current + spec.I0)
 
+    def use_command(self, spec: PlantSpec, command: np.ndarray | None) -> None:
+        """Replay ``spec`` (without sensor offset) under ``command`` from now on (None: the chosen one)."""
+        if command is None:
+            self.commands.pop(spec, None)
+        else:
+            self.commands[spec] = command
+        self._cache = {k: v for k, v in self._cache.items() if k[0] != spec}
+
     def command(self, spec: PlantSpec, x0: tuple[float, float, float]) -> np.ndarray:
         """The command sequence to replay: the logged one, or -- when the motor's start is only
         inferred -- the start (within ``ONSET_SHIFTS`` samples) that fits this model best over
-        the first phase.  Remembered per plant, so the final report uses the same one."""
+        the first phase: every shift for the first model, then a downhill search from the last
+        model's (each shift costs a start estimate, Gauss-Newton for a Coulomb or backlash plant).
+        Remembered per plant, so the final report uses the same one; ``use_command`` replaces it."""
         k0 = self.meas.onset
         if k0 is None:
-            return self.meas.dir
+            return self.commands.get(spec, self.meas.dir)     # one chosen on the whole run (start_refit)
         if spec not in self.commands:
             m = min(k0 + ONSET_WINDOW, self.meas.n)
-            best, best_nll = self.meas.dir, float("inf")
-            for shift in ONSET_SHIFTS:
-                d = self.meas.with_onset(k0 + shift)
-                try:
-                    sim = self.meas.replay(spec, x0, d, n=m)
-                except (RuntimeError, FloatingPointError, ValueError, PdrError):
-                    continue
-                self.simulations += 1
-                self.work += m                   # the first phase only, from a start already estimated
-                nll = _nll_of(self, {s: r[:m] - v for (s, r), v in
-                                     zip(self.meas.signals.items(), _model_signals(sim, self.meas))})
-                if nll < best_nll:
-                    best, best_nll = d, nll
-            self.commands[spec] = best
+            tried: dict[int, float] = {}
+
+            def nll_at(shift: int) -> float:
+                if shift not in tried:
+                    tried[shift] = self._onset_nll(spec, x0, self.meas.with_onset(k0 + shift), m)
+                return tried[shift]
+
+            if self._onset_shift is None:            # the first model: every shift
+                best = min(ONSET_SHIFTS, key=nll_at)
+            else:
+                # the next models differ a little: from where the last one's onset was, downhill
+                best = self._onset_shift
+                for step in (-1, 1):
+                    while best + step in ONSET_SHIFTS and nll_at(best + step) < nll_at(best):
+                        best += step
+            self._onset_shift = best
+            self.commands[spec] = self.meas.with_onset(k0 + best) if np.isfinite(nll_at(best)) else self.meas.dir
         return self.commands[spec]
+
+    def _onset_nll(self, spec: PlantSpec, x0, d: np.ndarray, m: int) -> float:
+        """The first phase's likelihood (``m`` samples) with the motor started as ``d`` says."""
+        try:
+            sim = self.meas.replay(spec, x0, d, n=m)
+        except (RuntimeError, FloatingPointError, ValueError, PdrError):
+            return float("inf")
+        self.simulations += 1
+        self.work += m                   # the first phase only, from a start already estimated
+        return _nll_of(self, {s: r[:m] - v for (s, r), v in
+                              zip(self.meas.signals.items(), _model_signals(sim, self.meas))})
 
     def command_for(self, effects: tuple[Effect, ...]) -> np.ndarray:
         spec = self.meas.spec(effects)

@@ -22,7 +22,7 @@ from pipeline.model.effects import Effect, PlantSpec
 from pipeline.model.simulate import SimResult
 from pipeline.validate.compare import observed_signals
 from pipeline.validate.noise import sample_instants
-from pipeline.validate.initial_state import Observed, StartEstimator, without_offset
+from pipeline.validate.initial_state import STATE_SCALES, Observed, StartEstimator, without_offset
 from pipeline.validate.start import Start
 
 
@@ -113,24 +113,77 @@ class Measurement:
                 self._starts[key] = estimator.start(d, spec.I0)
             elif self._offsets:
                 # the offset is the counter's, one per segment: estimated under the first model asked
-                # (the base), then held, as the angle residual is taken about its own mean anyway;
-                # re-estimating it for every candidate's plant tripled each start's cost
+                # (the base), then held, as the angle residual is taken about its own mean anyway
+                # (re-estimating it for every candidate's plant tripled each start's cost), and fitted
+                # again under the final model (``discover.start_refit``)
                 self._starts[key] = estimator.start(d, spec.I0, offset=self._offsets["segment"])
             else:
-                # the first seconds alone barely tell the counter's offset from a slowly decaying
-                # current (a motor-off lead-in): the whole segment's mean misfit pins it
-                start, offset = estimator.start(d, spec.I0), None
-                for _ in range(OFFSET_ITERATIONS):
-                    sim = start.simulate(plant, self.t_fit, d, closed_loop=False, angle=self.guard_angle)
-                    mean = float(np.mean(self.theta - sim.theta))
-                    if not np.isfinite(mean):
-                        break
-                    offset = mean
-                    start = estimator.start(d, spec.I0, offset=offset)
-                self._starts[key] = start
+                # the first seconds alone barely tell the counter's offset from where the springs hold
+                # the pinion (a segment opening at rest, creeping): the whole segment pins it
+                start = estimator.start(d, spec.I0)
+                offset = self._segment_offset(plant, spec.I0, start, d)
                 if offset is not None:
+                    start = estimator.start(d, spec.I0, offset=offset)
                     self._offsets["segment"] = offset
+                self._starts[key] = start
         return self._starts[key]
+
+    def _segment_offset(self, plant: PlantSpec, I0: float, start: Start, d: np.ndarray) -> float | None:
+        """The counter's offset that, with the start moved along with it, replays the whole segment
+        best: one weighted linear least squares in (start, offset), the replay's response to the
+        start by finite differences (exact for a linear plant, a Gauss-Newton step otherwise)."""
+        z0 = np.array(start.x0 if start.z is None else start.z, dtype=float)
+
+        def outputs(z: np.ndarray) -> np.ndarray:
+            at = replace(start, z=tuple(z), x0=tuple(z) if not start.lead_s else start.x0)
+            sim = self.run(at, plant, d)
+            parts = [sim.theta / np.sqrt(self.observed["theta"][1])]
+            if self.current is not None:
+                parts.append((sim.current + I0) / np.sqrt(self.observed["current"][1]))
+            return np.concatenate(parts)
+
+        try:
+            base = outputs(z0)
+            steps = OFFSET_STEP * STATE_SCALES
+            J = np.column_stack([(outputs(z0 + np.eye(3)[i] * steps[i]) - base) / steps[i] for i in range(3)])
+        except (RuntimeError, FloatingPointError, ValueError):
+            return None
+        y = [self.theta / np.sqrt(self.observed["theta"][1])]
+        ones = [np.full(self.n, 1.0 / np.sqrt(self.observed["theta"][1]))]
+        if self.current is not None:
+            y.append(self.current / np.sqrt(self.observed["current"][1]))
+            ones.append(np.zeros(self.n))
+        A = np.column_stack([J, np.concatenate(ones)])
+        r = np.concatenate(y) - base
+        ok = np.isfinite(r) & np.all(np.isfinite(A), axis=1)
+        if not ok.any():
+            return None
+        solution = np.linalg.lstsq(A[ok], r[ok], rcond=None)[0]
+        return float(solution[3]) if np.isfinite(solution[3]) else None
+
+    @property
+    def held_offset(self) -> float | None:
+        """After a reset: the counter's offset the starts are estimated with (None before one is)."""
+        return self._offsets.get("segment")
+
+    def segment_offset(self, spec: PlantSpec, dir_log: np.ndarray) -> float | None:
+        """After a reset, the counter's offset that replays the whole segment best under ``spec`` and
+        ``dir_log`` (a model that lacks an effect, as the base does, bends it); None otherwise."""
+        if self.angle_reference_known:
+            return None
+        return self._segment_offset(without_offset(spec), spec.I0, self.x0(spec, dir_log), dir_log)
+
+    def start_with_offset(self, spec: PlantSpec, dir_log: np.ndarray, offset: float) -> Start:
+        """The start under ``spec`` and ``dir_log`` with the counter's ``offset`` (not remembered)."""
+        self.x0(spec, dir_log)
+        return self._estimators[without_offset(spec)].start(dir_log, spec.I0, offset=offset)
+
+    def hold_offset(self, spec: PlantSpec, offset: float) -> None:
+        """Hold the counter's ``offset``; the starts under ``spec``'s plant are estimated again with it."""
+        self._offsets["segment"] = offset
+        plant = without_offset(spec)
+        for key in [k for k in self._starts if k[0] == plant]:
+            del self._starts[key]
 
     def pin_start(self, spec: PlantSpec, dir_log: np.ndarray, start: Start) -> None:
         """Use ``start`` for ``spec`` under ``dir_log`` from now on (a start refined on more than the
@@ -142,7 +195,7 @@ class Measurement:
     def simulate_ways(self, spec: PlantSpec, dir_log: np.ndarray) -> dict[str, SimResult]:
         """Closed loop and replay at the recording's own instants, from its start (validation's two ways)."""
         start = self.x0(spec, dir_log)
-        return {way: start.simulate(spec, self.t, dir_log, closed_loop=way == "closed_loop", angle=self.guard_angle)
+        return {way: self.run(start, spec, dir_log, t=self.t, closed_loop=way == "closed_loop")
                 for way in ("closed_loop", "replay")}
 
     def replay(self, spec: PlantSpec, x0: Start | tuple[float, float, float] | None = None,
@@ -152,18 +205,24 @@ class Measurement:
         this measurement's own command); ``n``: only the first n samples."""
         d = self.dir if dir_log is None else dir_log
         m = self.n if n is None else n
-        if x0 is None or (isinstance(x0, Start) and dir_log is not None and not np.array_equal(d, self.dir)):
-            start = self.x0(spec, d)        # the start depends on the command replayed (an inferred onset)
+        if x0 is None:
+            start = self.x0(spec, d)
+        elif isinstance(x0, Start) and dir_log is not None and not np.array_equal(d, self.dir):
+            # the start depends on the command replayed (an inferred onset), under the sensor offset ``x0`` had
+            start = self.x0(replace(spec, I0=x0.current_offset), d)
         else:
             start = x0 if isinstance(x0, Start) else Start.given(x0)
-        angle = None if self.guard_angle is None else self.guard_angle[:m]
-        return start.simulate(spec, self.t_fit[:m], d[:m], closed_loop=False, angle=angle)
+        return self.run(start, spec, d, n=m)
 
-    @property
-    def guard_angle(self) -> np.ndarray | None:
-        """The measured angle in the guard's frame, which decides the command at a lost row
-        (``with_lost_samples``); unknown after a board reset (the counter's zero moved)."""
-        return self.theta if self.angle_reference_known else None
+    def run(self, start: Start, spec: PlantSpec, dir_log: np.ndarray, *, n: int | None = None,
+            t: np.ndarray | None = None, closed_loop: bool = False) -> SimResult:
+        """``start.simulate`` on the first ``n`` of the recording's instants (``t``: default the fitting
+        grid); a reversal at a lost row is decided on the measured angle (``with_lost_samples``), in the
+        counter's frame the sketch decided in, not on the model's: fixed by the data, so the replay is
+        smooth in the model's parameters, and right after a reset, where the two frames differ."""
+        m = self.n if n is None else n
+        t = self.t_fit if t is None else t
+        return start.simulate(spec, t[:m], dir_log[:m], closed_loop=closed_loop, angle=self.theta[:m])
 
 
 
@@ -171,9 +230,8 @@ class Measurement:
 # dozen replays, and the 10 s budget holds for about this many (100 s of a 50 ms sketch).
 MAX_SAMPLES = 2000
 
-# After a board reset, the start is re-estimated this many times with the counter's offset taken
-# from the whole segment's misfit under the previous one.
-OFFSET_ITERATIONS = 2
+# The start's step for the whole segment's response to it (a fraction of each state's typical size).
+OFFSET_STEP = 1e-3
 
 # Sample instants are replayed on this grid while fitting: micros() stamps make every step
 # different, and each distinct step costs the simulator a matrix exponential; moving an instant

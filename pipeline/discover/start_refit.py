@@ -6,6 +6,12 @@ start) can leave a transient there that outlasts the window and reads as structu
 lacks.  Before the verdict, the final model's initial state is refined by a few Gauss-Newton
 steps on every sample (each signal weighted by its misfit, as the concentrated likelihood
 does) and kept only when the likelihood improves; validation's x0 stays the window estimate.
+
+When the motor's start is only inferred (no logged command), the onset the rounds chose on the
+first phase is chosen again on the whole recording first: the start, estimated over the first
+seconds, absorbs a sample's error in the onset there, but the plant's slow electrical mode
+carries it through the rest of the run (one 10 ms sample late read as 46 noise variances of
+angle structure on a clean segment after a board reset).
 """
 
 from __future__ import annotations
@@ -14,7 +20,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from pipeline.discover.candidates import Evaluator
+from pipeline.discover.candidates import ONSET_SHIFTS, Evaluator
 from pipeline.discover.residuals import residuals
 from pipeline.model.effects import Effect
 from pipeline.validate.initial_state import STATE_SCALES
@@ -24,13 +30,62 @@ STEPS = 3
 RELATIVE_STEP = 1e-3          # of each state's typical size (``STATE_SCALES``), for the Jacobian
 
 
+def _replayed_nll(ev: Evaluator, effects: tuple[Effect, ...], command: np.ndarray,
+                  start: Start | None = None) -> float:
+    """The likelihood of the whole recording replayed under ``command`` from ``start`` (default: the
+    start estimated for it)."""
+    meas = ev.meas
+    full = meas.spec(effects)
+    try:
+        start = meas.x0(full, command) if start is None else start
+        sim = meas.run(start, replace(full, I0=0.0), command)
+    except (RuntimeError, FloatingPointError, ValueError, np.linalg.LinAlgError):
+        return float("inf")
+    ev.simulations += 1
+    return ev.nll(replace(sim, current_measured=sim.current + full.I0))
+
+
+def _command_on_the_whole_run(ev: Evaluator, effects: tuple[Effect, ...]) -> np.ndarray:
+    """The command to replay under ``effects``: the logged one; or, with an inferred onset, the onset
+    (``ONSET_SHIFTS``) that replays the whole recording best under ``effects``.  After a reset the
+    counter's offset is fitted with each onset (either bends the other) and the best one's held."""
+    meas = ev.meas
+    full = meas.spec(effects)
+    chosen = ev.command_for(effects)
+    began = replace(meas, dir=chosen)          # its onset is the chosen one
+    k0 = began.onset
+    if k0 is None and meas.angle_reference_known:
+        return chosen
+
+    def trial(d: np.ndarray) -> tuple[float, float | None]:
+        offset = meas.segment_offset(full, d)
+        start = None if offset is None else meas.start_with_offset(full, d, offset)
+        return _replayed_nll(ev, effects, d, start), offset
+
+    best, (best_nll, best_offset) = chosen, trial(chosen)
+    for shift in ONSET_SHIFTS if k0 is not None else ():
+        d = began.with_onset(k0 + shift)
+        if shift != 0 and (tried := trial(d))[0] < best_nll:
+            best, (best_nll, best_offset) = d, tried
+    if best_offset is not None:
+        meas.hold_offset(full, best_offset)
+    return best
+
+
 def refine_start(ev: Evaluator, effects: tuple[Effect, ...]) -> Start | None:
-    """A start that replays the whole recording better under ``effects``, or None."""
+    """A start (and, for an inferred onset, a command) that replays the whole recording better
+    under ``effects``, or None; the Evaluator replays them from now on."""
     meas = ev.meas
     spec = replace(meas.spec(effects), I0=0.0)
     full = meas.spec(effects)
-    command = ev.command_for(effects)
-    start = meas.x0(full)                  # the start the Evaluator replays from (keyed on the logged command)
+    before = ev.nll(ev.sim(effects))
+    chosen = ev.commands.get(spec)
+    held = meas.held_offset
+    logged_start = meas.x0(full)           # the start the Evaluator keys its replays on
+    command = _command_on_the_whole_run(ev, effects)
+    if held is not None and meas.held_offset == held:
+        held = None                        # the offset did not move
+    start = meas.x0(full, command)
     z0 = np.array(start.x0 if start.z is None else start.z, dtype=float)
 
     def at(z: np.ndarray) -> Start:
@@ -38,7 +93,7 @@ def refine_start(ev: Evaluator, effects: tuple[Effect, ...]) -> Start | None:
                        else start.x0)
 
     def stacked(z: np.ndarray, weights: dict[str, float] | None = None) -> tuple[np.ndarray, dict[str, float]]:
-        sim = at(z).simulate(spec, meas.t_fit, command, closed_loop=False, angle=meas.guard_angle)
+        sim = meas.run(at(z), spec, command)
         sim = replace(sim, current_measured=sim.current + full.I0)
         res = residuals(meas, sim)
         w = weights or {s: 1.0 / np.sqrt(float(np.mean(r * r)) + 1e-3 * ev.floor[s]) for s, r in res.items()}
@@ -60,13 +115,20 @@ def refine_start(ev: Evaluator, effects: tuple[Effect, ...]) -> Start | None:
                 break
             z, r = z + step, trial
     except (RuntimeError, FloatingPointError, ValueError, np.linalg.LinAlgError):
-        return None
-    if np.array_equal(z, z0):
+        z = z0
+    if np.array_equal(z, z0) and np.array_equal(command, ev.command_for(effects)) and held is None:
         return None
     refined = at(z)
-    before = ev.nll(ev.sim(effects))
+    # the Evaluator replays from the start under the logged command, under ``command`` from its own start
     meas.pin_start(full, meas.dir, refined)
+    meas.pin_start(full, command, refined)
+    ev.use_command(spec, command)
     if ev.nll(ev.sim(effects)) < before:
         return refined
-    meas.pin_start(full, meas.dir, start)
+    if held is not None:
+        meas.hold_offset(full, held)
+    else:
+        meas.pin_start(full, meas.dir, logged_start)
+        meas.pin_start(full, command, start)
+    ev.use_command(spec, chosen)
     return None

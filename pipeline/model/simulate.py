@@ -134,8 +134,8 @@ def with_lost_samples(t: np.ndarray, dir_log: np.ndarray, angle: np.ndarray | No
         m = missing[i]
         t_full[kept[i] + 1:kept[i + 1]] = t[i] + h[i] * np.arange(1, m + 1) / (m + 1)
         before, after = int(dir_log[i]), int(dir_log[i + 1])
-        if before == after and before != loop.UNKNOWN:
-            d_full[kept[i] + 1:kept[i + 1]] = before
+        if (before == after and before != loop.UNKNOWN) or before == 0:
+            d_full[kept[i] + 1:kept[i + 1]] = before          # held (the motor off: as the loop holds it)
         elif angle is not None and before in (-1, 1):
             near = np.arange(max(i - 1, 0), min(i + 3, len(t)))        # two logged samples each side
             near = near[np.isfinite(angle[near])]
@@ -146,7 +146,7 @@ def with_lost_samples(t: np.ndarray, dir_log: np.ndarray, angle: np.ndarray | No
             fit = np.polyfit(t[near] - t[i], angle[near], len(near) - 1)
             d = before
             for j in range(1, m + 1):
-                d = loop.next_dir(d, float(np.polyval(fit, t_full[kept[i] + j] - t[i])), guard)
+                d = next_dir(d, float(np.polyval(fit, t_full[kept[i] + j] - t[i])), guard)
                 d_full[kept[i] + j] = d
     return t_full, d_full, kept
 

@@ -48,6 +48,7 @@ WINDOW_SAMPLES = 1200
 STATE_SCALES = np.array([0.1, 1.0, 0.01])
 REWEIGHTS = 3                    # reweightings by the misfit (stopped once the variances settle)
 REFINE_STEPS = 3                 # Gauss-Newton steps for a plant that is not affine in x0
+REFINE_TOLERANCE = 1e-3         # Gauss-Newton stops once a step gains less than this share of the cost
 JACOBIAN_STEP = 1e-3             # of a coefficient (a fraction of the state's typical size)
 # A command change among the pre-log commands is a priori unlikely: the rig reverses about once
 # in 35 samples.  A change costs 2 ln 35 ~ 7 in the weighted squared residual (-2 log of its prior
@@ -137,12 +138,11 @@ class _Problem:
 
     def _loop_log(self, log: np.ndarray) -> np.ndarray:
         """The logged commands on the loop's instants (``with_lost_samples``: a lost row's command by the
-        sketch's rule on the measured angle, less the counter's offset), fixed by the data, not by the
+        sketch's rule on the measured angle, its own count's frame), fixed by the data, not by the
         model's angle, so the replay stays affine in x0."""
         if self.kept[-1] + 1 == len(self.kept):
             return log
-        angle = None if self.theta_measured is None else self.theta_measured - self.offset
-        return with_lost_samples(self.t[self.m:][self.kept], log, angle, float(self.spec.guard_rad))[1]
+        return with_lost_samples(self.t[self.m:][self.kept], log, self.theta_measured, float(self.spec.guard_rad))[1]
 
     def outputs(self, sim: SimResult, measured: bool = True) -> np.ndarray:
         """Model outputs at the real samples (``measured``: the current as the sensor reads it, + I0)."""
@@ -253,7 +253,7 @@ def _gauss_newton(p: _Problem, a: np.ndarray, commands,
             break
         gain = (cost - c) / max(cost, 1e-300)
         a, residual, cost = trial, r, c
-        if gain < 1e-6:
+        if gain < REFINE_TOLERANCE:
             break
     return a, residual, _jacobian(p, a, commands)
 
@@ -304,6 +304,7 @@ class StartEstimator:
         self.P = np.column_stack(pulses) if pulses else np.zeros((len(p.y), 0))
         self.p = p
         self._base: dict[bytes, np.ndarray] = {}
+        self._refined: np.ndarray | None = None    # the last Gauss-Newton start (``_warmer``)
 
     def _nearly_affine(self, a: np.ndarray, commands, predicted: np.ndarray) -> bool:
         """Whether the full simulation from the superposed estimate is the superposition's
@@ -315,6 +316,17 @@ class StartEstimator:
         p = self.p
         full = p.y - p.outputs(p.run(a * STATE_SCALES, commands))
         return float(np.sum(((full - predicted) * p.weights(p.noise)) ** 2)) <= 1.0
+
+    def _warmer(self, a: np.ndarray, commands, w: np.ndarray) -> np.ndarray:
+        """Where Gauss-Newton starts: the superposed estimate ``a``, or this plant's last refined start
+        when it fits better (the next command differs from the last by a sample's onset, so it is
+        close and the refinement stops after a step instead of three)."""
+        last = self._refined
+        if last is None:
+            return a
+        p = self.p
+        cost = [float(np.sum(((p.y - p.outputs(p.run(c * STATE_SCALES, commands))) * w) ** 2)) for c in (a, last)]
+        return last if cost[1] < cost[0] else a
 
     def window(self, dir_log: np.ndarray) -> bytes:
         """The part of a command sequence the estimate sees (a cache key)."""
@@ -366,6 +378,7 @@ class StartEstimator:
             # not affine in x0 (Coulomb friction, backlash): Gauss-Newton on the full simulation
             # from the superposed estimate, reweighted by the misfit it leaves
             a, Phi = a[:3], Phi[:, :3]          # the angle offset stays at its superposed estimate
+            a = self._warmer(a, commands, w)
             for _ in range(2):
                 a, residual, J = _gauss_newton(p, a, commands, w)
                 previous, variances = variances, p.variances(residual)
@@ -373,6 +386,7 @@ class StartEstimator:
                 if np.allclose(variances, previous, rtol=0.1):
                     break
             x0 = _state(p.run(a * STATE_SCALES, commands), p.m)
+            self._refined = a
         p.forget_runs()
         Jw = J * w[:, None]
         scale = _residual_scale(residual * w, p.dof)
@@ -380,7 +394,7 @@ class StartEstimator:
         sigma = np.sqrt(np.clip(np.diag(cov_x), 0.0, None))
         return Start(x0=tuple(float(v) for v in x0), sigma=tuple(float(v) for v in sigma),
                      lead_s=tuple(float(v) for v in p.lead), commands=tuple(int(c) for c in commands),
-                     z=tuple(float(v) for v in a[:3] * STATE_SCALES))
+                     z=tuple(float(v) for v in a[:3] * STATE_SCALES), current_offset=p.I0)
 
 
 def without_offset(spec: PlantSpec) -> PlantSpec:

@@ -23,6 +23,7 @@ class Start:
     lead_s: tuple[float, ...] = ()          # when the pre-log commands were decided, s relative to t0 (< 0)
     commands: tuple[int, ...] = ()          # those commands: the one in force at t0, then those in flight
     z: tuple[float, float, float] | None = None   # state at the first lead instant (x0 without a lead)
+    current_offset: float = 0.0             # A: the current sensor's offset the start was estimated under
 
     @classmethod
     def given(cls, x0: tuple[float, float, float]) -> "Start":

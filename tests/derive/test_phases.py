@@ -119,3 +119,17 @@ def test_peak_current_has_the_commands_sign_and_is_near_the_truth(seed):
         errors.append(r.peak_current_a - truth)
     assert len(errors) >= 12
     assert np.sqrt(np.mean(np.square(errors))) < 0.025 and np.max(np.abs(errors)) < 0.06   # noise sigma 27 mA
+
+
+def test_motor_onset_despite_a_settling_creep():
+    """After a board reset's unpowered gap the pinion may still creep on its springs: the count moves by
+    one a few samples in, the other way from the drive.  The onset is the drive's, not the creep's."""
+    t = np.arange(80) * 0.05
+    on = 40
+    creep = 0.004 * t                                                 # rad: a count after ~0.6 s
+    drive = -2.07 * np.clip(t - t[on], 0, None) ** 3
+    theta = np.round((creep + drive) / COUNT) * COUNT
+    assert theta[on - 30] != theta[0]                                  # the creep moved the count early
+    assert abs(motor_onset(t, theta) - on) <= 1
+    d = infer_dir(t, theta, GUARD)
+    assert (d[:on - 1] == 0).all() and d[on + 1] == -1                 # and it drives down, as the angle goes

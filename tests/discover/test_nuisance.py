@@ -179,3 +179,69 @@ def test_an_effect_that_moves_the_angle_too_is_asked_for_all_the_currents_struct
     offset is, named it."""
     draw, doc = _randomised(179, tmp_path)
     assert draw.outside and doc["verdict"] == "unexplained" and doc["effects"] == []
+
+
+def test_a_segment_opening_at_rest_after_a_reset_without_dir(tmp_path):
+    """Without a dir column, a segment after a board reset opens with the motor off while the pinion
+    still creeps on its springs (here 0.02 rad/s, 0.17 rad from their rest after a 10 s gap): the motor's
+    start is the drive's, not the creep's first count, and the counter's offset is pinned by the whole
+    segment, not by the first seconds (where it reads like where the springs hold the pinion).  Both
+    wrong, this clean segment left 33,000 noise variances of angle structure."""
+    from pipeline.derive.stage import derive_run
+    from pipeline.discover.stage import discover_run
+    from pipeline.ingest.stage import ingest_recording
+    from pipeline.rig.recording import RigSetup, make_recording, write_recording
+    from pipeline.rig.serial import Artefacts
+
+    setup = RigSetup(duration_s=30.0, artefacts=Artefacts(dir_column=False, reset_after_s=8.0, reset_gap_s=10.0))
+    rec = make_recording(setup, seed=3)
+    assert abs(rec.truth_meta["segments"][1]["theta_ref_rad"]) > 0.1
+    write_recording(rec, tmp_path / "raw", "creep")
+    _, after = ingest_recording(tmp_path / "raw" / "creep.csv", tmp_path / "processed").runs
+    derive_run(after)
+    _, doc = discover_run(after)
+    assert doc["verdict"] == "none" and not doc["effects"], (doc["effects"], doc["structure_after"])
+    assert abs(doc["motor_start_shift_samples"]["base"]) <= 2       # the onset found is the drive's
+
+
+@pytest.mark.parametrize("index, expected", [(226, {}), (31, {"spring_stiffness": 1.2829}),
+                                             (121, {"spring_stiffness": 1.2231})])
+def test_after_a_reset_the_command_is_decided_in_the_counters_frame_and_on_the_whole_run(tmp_path, index, expected):
+    """Randomised draws (seed 15) whose longest segment follows a board reset.  226 (clean, dir logged, 5
+    rows lost) and 31 (stiffer springs, no dir): a row lost at a reversal was decided by the model's
+    guard, in the springs' frame, 0.09 and 0.03 rad off the counter's the sketch decided in, which
+    drove a reversed pulse.  121 (stiffer springs, no dir): the motor's onset, chosen on the first
+    phase where the start absorbs a sample's error, came out one sample early; on the whole run it is
+    not.  Each left hundreds of noise variances in the angle."""
+    draw, doc = _randomised(index, tmp_path)
+    assert draw.setup.artefacts.reset_after_s is not None
+    assert doc["verdict"] == ("explained" if expected else "none"), (doc["effects"], doc["structure_after"])
+    found = {e["name"]: next(iter(e["parameters"].values())) for e in doc["effects"]}
+    assert found.keys() == expected.keys()
+    for name, value in expected.items():
+        assert found[name] == pytest.approx(value, rel=0.01)
+
+
+def test_a_start_re_estimated_for_another_onset_keeps_the_sensor_offset(tmp_path):
+    """Without dir the motor's onset is a nuisance: a model is replayed under shifted onsets, each from
+    a start estimated for it, under the model's own sensor offset (not none: the start's current
+    would take some of the offset up)."""
+    import numpy as np
+    from dataclasses import replace
+
+    from pipeline.discover.measurement import measurement_from_kinematics
+    from pipeline.rig.serial import Artefacts
+    from tests.discover.synthetic import rig_kinematics
+
+    offset = make_effect("current_sensor_offset", {"I0": 0.15})
+    kin, cfg, _ = rig_kinematics((offset,), seed=2, work=tmp_path, duration_s=8.0,
+                                 artefacts=Artefacts(dir_column=False))
+    meas = measurement_from_kinematics(kin, cfg, "r")
+    assert meas.onset is not None                                   # a motor-off lead-in, the onset inferred
+    spec = meas.spec((offset,))
+    plant = replace(spec, I0=0.0)
+    earlier = meas.with_onset(meas.onset - 2)
+    replayed = meas.replay(plant, meas.x0(spec), earlier)           # as the Evaluator replays a shifted onset
+    own = meas.x0(spec, earlier)
+    assert own.current_offset == 0.15
+    assert np.array_equal(replayed.current, meas.run(own, plant, earlier).current)

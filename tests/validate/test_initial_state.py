@@ -164,3 +164,32 @@ def test_a_row_lost_at_a_reversal_in_the_first_seconds_does_not_bend_the_start()
     replay = simulate_both(spec, lossy, start)["replay"]
     window = lossy["t_s"].to_numpy() < 2.0
     assert np.sqrt(np.mean((replay.theta - lossy["theta_rad"])[window] ** 2)) < 1.5 * COUNT
+
+
+def test_a_lost_row_between_agreeing_commands_held_that_command():
+    """A row lost over serial: when the commands logged on both sides agree the sketch held it (a
+    reversal and back needs both guards); without the measured angle, only a gap at a reversal is left
+    to the model's controller."""
+    from pipeline.model import loop
+    from pipeline.model.simulate import with_lost_samples
+
+    t = np.array([0.0, 0.05, 0.15, 0.2, 0.3, 0.35, 0.4])
+    d = np.array([1, 1, 1, -1, -1, -1, -1], dtype=np.int8)
+    _, held, kept = with_lost_samples(t, d)
+    assert held.tolist() == [1, 1, 1, 1, -1, -1, -1, -1, -1]      # the gap 0.05-0.15 held +1, 0.2-0.3 held -1
+    gap_at_reversal = np.array([1, 1, -1, -1, -1, -1, -1], dtype=np.int8)
+    still = with_lost_samples(t, gap_at_reversal)[1]
+    assert still[2] == loop.UNKNOWN and still[5] == -1           # 0.05 -> 0.15 reversed: the model decides
+
+
+def test_a_reversal_at_a_lost_row_is_decided_on_the_measured_angle():
+    """A lost row across a reversal: the sketch reversed where its own count reached the guard, which
+    the measured angle either side tells (interpolated), whatever frame the model's angle is in."""
+    from pipeline.model.simulate import with_lost_samples
+
+    t = np.array([0.0, 0.1, 0.2, 0.4, 0.5, 0.6])              # the row at 0.3 lost
+    d = np.array([1, 1, 1, -1, -1, -1], dtype=np.int8)
+    rising = 0.5 + 2.0 * t                                    # 1.1 at the lost row: past a 1.0 guard
+    assert with_lost_samples(t, d, rising, 1.0)[1][3] == -1
+    late = 0.2 + 2.0 * t                                      # 0.8 there: it reversed only at 0.4
+    assert with_lost_samples(t, d, late, 1.0)[1][3] == 1
