@@ -43,6 +43,7 @@ from pipeline.discover.joint import effect_intervals, joint_fit, sensitivity
 from pipeline.discover.measurement import Measurement, ambiguous_switches, settle_switches
 from pipeline.discover.residuals import noise_floor
 from pipeline.discover.start_refit import refine_start
+from pipeline.discover.thorough import jointly_relaxed
 from pipeline.model.effects import CATALOGUE, Effect
 
 # After an effect, a further round only while some signal keeps this much structure, in noise variances:
@@ -163,8 +164,14 @@ def select(meas: Measurement, names: tuple[str, ...] | None = None) -> Selection
                           key=lambda a: -a.fit.heldout_nll_gain)
         screened = [Screened(n, round_, float(scans[n].grid[np.argmin(scans[n].nll)]), scan_gain[n])
                     for n in order if n not in full]
-        rounds.append([*assessed, *screened])
         passing = [a for a in assessed if a.accepted]
+        if not passing and effects and max(excess(ev, effects).values()) > STRUCTURE_FLOORS:
+            # nothing passed and the residual is still structure: refit each candidate jointly from its best scan points
+            assessed = sorted((assess(ev, meas, effects, n, folds, round_, jointly_relaxed(ev, effects, n, scans[n]))
+                               for n in order), key=lambda a: -a.fit.heldout_nll_gain)
+            screened = []
+            passing = [a for a in assessed if a.accepted]
+        rounds.append([*assessed, *screened])
         if not passing:
             break
         best = passing[0]

@@ -65,3 +65,11 @@ def _assert_draw_explained(index: int, hidden: set[str], tolerance: float, work)
     assert d.verdict == "explained"
     for name, v in truth.items():
         assert abs(found[name] - v) <= tolerance * abs(v), name
+
+
+def test_a_stiffer_spring_beside_a_heavier_rack_is_found_by_a_joint_refit_when_no_quick_candidate_passes(tmp_path):
+    """Randomised draw 212: backlash, a rack 1.04e-3 kg m^2 and springs 20 % stiff.  Round one adopts
+    the rack inertia; the spring then needs the inertia moved a long way along their shared valley,
+    beyond the scan's one linear step, so no quick candidate passes.  Started from its best scan
+    points and refitted jointly it passes every rule, and the backlash follows in round three."""
+    _assert_draw_explained(212, {"backlash", "rack_inertia", "spring_stiffness"}, 0.05, tmp_path)
