@@ -43,7 +43,7 @@ from pipeline.discover.joint import effect_intervals, joint_fit, sensitivity
 from pipeline.discover.measurement import Measurement, ambiguous_switches, settle_switches
 from pipeline.discover.residuals import noise_floor
 from pipeline.discover.start_refit import refine_start
-from pipeline.discover.thorough import jointly_relaxed
+from pipeline.discover.thorough import thorough_round
 from pipeline.model.effects import CATALOGUE, Effect
 
 # After an effect, a further round only while some signal keeps this much structure, in noise variances:
@@ -166,10 +166,11 @@ def select(meas: Measurement, names: tuple[str, ...] | None = None) -> Selection
                     for n in order if n not in full]
         passing = [a for a in assessed if a.accepted]
         if not passing and effects and max(excess(ev, effects).values()) > STRUCTURE_FLOORS:
-            # nothing passed and the residual is still structure: refit each candidate jointly from its best scan points
-            assessed = sorted((assess(ev, meas, effects, n, folds, round_, jointly_relaxed(ev, effects, n, scans[n]))
-                               for n in order), key=lambda a: -a.fit.heldout_nll_gain)
-            screened = []
+            # nothing passed and the residual is still structure: each candidate again, from its profile walk
+            redone = thorough_round(ev, meas, effects, scan_gain, scans, folds, round_, [*assessed, *screened],
+                                    WORK_BUDGET)
+            assessed = [a for a in redone if isinstance(a, Assessment)]
+            screened = [a for a in redone if not isinstance(a, Assessment)]
             passing = [a for a in assessed if a.accepted]
         rounds.append([*assessed, *screened])
         if not passing:

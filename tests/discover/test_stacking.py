@@ -67,9 +67,16 @@ def _assert_draw_explained(index: int, hidden: set[str], tolerance: float, work)
         assert abs(found[name] - v) <= tolerance * abs(v), name
 
 
-def test_a_stiffer_spring_beside_a_heavier_rack_is_found_by_a_joint_refit_when_no_quick_candidate_passes(tmp_path):
+def test_a_stiffer_spring_beside_a_heavier_rack_is_found_by_a_profile_walk_when_no_quick_candidate_passes(tmp_path):
+    """Randomised draw 178: springs 16 % stiff and a rack 9.6e-4 kg m^2.  Round one adopts the rack
+    inertia alone (17 % light); the spring then needs the inertia moved a long way along their shared
+    valley (the oscillation's frequency), beyond the scan's one linear step, so no quick candidate
+    passes.  Walked along its scan points with the inertia refitted at each, the spring passes every rule."""
+    _assert_draw_explained(178, {"rack_inertia", "spring_stiffness"}, 0.05, tmp_path)
+
+
+def test_three_effects_with_a_spring_behind_a_heavier_rack_are_all_named(tmp_path):
     """Randomised draw 212: backlash, a rack 1.04e-3 kg m^2 and springs 20 % stiff.  Round one adopts
-    the rack inertia; the spring then needs the inertia moved a long way along their shared valley,
-    beyond the scan's one linear step, so no quick candidate passes.  Started from its best scan
-    points and refitted jointly it passes every rule, and the backlash follows in round three."""
+    the rack inertia; no quick candidate passes in round two; the profile walk finds the spring, and
+    the backlash follows in round three."""
     _assert_draw_explained(212, {"backlash", "rack_inertia", "spring_stiffness"}, 0.05, tmp_path)
