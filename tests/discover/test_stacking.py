@@ -75,6 +75,13 @@ def test_a_stiffer_spring_beside_a_heavier_rack_is_found_by_a_profile_walk_when_
     _assert_draw_explained(178, {"rack_inertia", "spring_stiffness"}, 0.05, tmp_path)
 
 
+def test_a_backlash_beside_a_heavier_rack_without_dir_is_named_once_the_switches_are_settled_by_the_rack(tmp_path):
+    """Randomised draw 10, no dir column: a rack 1.54e-3 kg m^2 and a 0.046 rad backlash.  Settled by
+    the base model, one inferred switch is a sample off; with the rack adopted it moves, and the
+    backlash it hid is named (0.048 rad)."""
+    _assert_draw_explained(10, {"rack_inertia", "backlash"}, 0.1, tmp_path)
+
+
 def test_three_effects_with_a_spring_behind_a_heavier_rack_are_all_named(tmp_path):
     """Randomised draw 212: backlash, a rack 1.04e-3 kg m^2 and springs 20 % stiff.  Round one adopts
     the rack inertia; no quick candidate passes in round two; the profile walk finds the spring, and
