@@ -43,7 +43,7 @@ from pipeline.discover.joint import effect_intervals, joint_fit, sensitivity
 from pipeline.discover.measurement import Measurement, ambiguous_switches, settle_switches
 from pipeline.discover.residuals import noise_floor
 from pipeline.discover.start_refit import refine_start
-from pipeline.discover.thorough import thorough_round
+from pipeline.discover.thorough import pair_restart, thorough_round
 from pipeline.model.effects import CATALOGUE, Effect
 
 # After an effect, a further round only while some signal keeps this much structure, in noise variances:
@@ -168,49 +168,59 @@ def _forward(meas: Measurement, names: tuple[str, ...]) -> Selection:
     near_tie = None
     last_round = 0
     stopped_for_time = False
-    for round_ in range(1, MAX_EFFECTS + 1):
-        remaining = [n for n in names if n not in {e.name for e in effects}]
-        if not remaining or (effects and not worth_another_round(excess(ev, effects))):
-            break
-        round_start = ev.work
-        if round_ > 1 and round_start + last_round > WORK_BUDGET:
-            stopped_for_time = True
-            break
-        nll_now = ev.nll(ev.sim(effects))
-        base_sens = sensitivity(ev, effects) if effects else None
-        scans = {n: scan(ev, effects, n, base_sens) for n in remaining}
-        scan_gain = {n: nll_now - float(np.min(scans[n].nll)) for n in remaining}
-        order = sorted(remaining, key=lambda n: -scan_gain[n])
-        k = len(order) if round_ == 1 else LATER_FULL_FITS
-        full = [n for n in order[:k] if scan_gain[n] > 0]
-        assessed = sorted((assess(ev, meas, effects, n, folds, round_, scans[n]) for n in full),
-                          key=lambda a: -a.fit.heldout_nll_gain)
-        screened = [Screened(n, round_, float(scans[n].grid[np.argmin(scans[n].nll)]), scan_gain[n])
-                    for n in order if n not in full]
-        passing = [a for a in assessed if a.accepted]
-        if not passing and effects and max(excess(ev, effects).values()) > STRUCTURE_FLOORS:
-            # nothing passed and the residual is still structure: each candidate again, from its profile walk
-            redone = thorough_round(ev, meas, effects, scan_gain, scans, folds, round_, [*assessed, *screened],
-                                    WORK_BUDGET)
-            assessed = [a for a in redone if isinstance(a, Assessment)]
-            screened = [a for a in redone if not isinstance(a, Assessment)]
+    restarted = False
+    while True:
+        for round_ in range(len(effects) + 1, MAX_EFFECTS + 1):
+            remaining = [n for n in names if n not in {e.name for e in effects}]
+            if not remaining or (effects and not worth_another_round(excess(ev, effects))):
+                break
+            round_start = ev.work
+            if round_ > 1 and round_start + last_round > WORK_BUDGET:
+                stopped_for_time = True
+                break
+            nll_now = ev.nll(ev.sim(effects))
+            base_sens = sensitivity(ev, effects) if effects else None
+            scans = {n: scan(ev, effects, n, base_sens) for n in remaining}
+            scan_gain = {n: nll_now - float(np.min(scans[n].nll)) for n in remaining}
+            order = sorted(remaining, key=lambda n: -scan_gain[n])
+            k = len(order) if round_ == 1 else LATER_FULL_FITS
+            full = [n for n in order[:k] if scan_gain[n] > 0]
+            assessed = sorted((assess(ev, meas, effects, n, folds, round_, scans[n]) for n in full),
+                              key=lambda a: -a.fit.heldout_nll_gain)
+            screened = [Screened(n, round_, float(scans[n].grid[np.argmin(scans[n].nll)]), scan_gain[n])
+                        for n in order if n not in full]
             passing = [a for a in assessed if a.accepted]
-        rounds.append([*assessed, *screened])
-        if not passing:
+            if not passing and effects and max(excess(ev, effects).values()) > STRUCTURE_FLOORS:
+                # nothing passed and the residual is still structure: each candidate again, from its profile walk
+                redone = thorough_round(ev, meas, effects, scan_gain, scans, folds, round_, [*assessed, *screened],
+                                        WORK_BUDGET)
+                assessed = [a for a in redone if isinstance(a, Assessment)]
+                screened = [a for a in redone if not isinstance(a, Assessment)]
+                passing = [a for a in assessed if a.accepted]
+            rounds.append([*assessed, *screened])
+            if not passing:
+                break
+            best = passing[0]
+            runner = next((a for a in assessed if a is not best), None)
+            if (near_tie is None and runner is not None
+                    and runner.structure_left + 1.0 <= NEAR_TIE * (best.structure_left + 1.0)):
+                near_tie = {"round": round_, "chosen": best.fit.name, "runner_up": runner.fit.name,
+                            "scores": {best.fit.name: best.score, runner.fit.name: runner.score},
+                            "structure_left": {best.fit.name: best.structure_left,
+                                               runner.fit.name: runner.structure_left},
+                            "heldout_nll_gain": {best.fit.name: best.fit.heldout_nll_gain,
+                                                 runner.fit.name: runner.fit.heldout_nll_gain},
+                            "runner_up_accepted": bool(runner.accepted)}
+            effects = best.fit.effects
+            last_round = ev.work - round_start
+        if restarted or not effects or max(excess(ev, effects).values()) <= STRUCTURE_FLOORS or ev.work > WORK_BUDGET:
             break
-        best = passing[0]
-        runner = next((a for a in assessed if a is not best), None)
-        if (near_tie is None and runner is not None
-                and runner.structure_left + 1.0 <= NEAR_TIE * (best.structure_left + 1.0)):
-            near_tie = {"round": round_, "chosen": best.fit.name, "runner_up": runner.fit.name,
-                        "scores": {best.fit.name: best.score, runner.fit.name: runner.score},
-                        "structure_left": {best.fit.name: best.structure_left,
-                                           runner.fit.name: runner.structure_left},
-                        "heldout_nll_gain": {best.fit.name: best.fit.heldout_nll_gain,
-                                             runner.fit.name: runner.fit.heldout_nll_gain},
-                        "runner_up_accepted": bool(runner.accepted)}
-        effects = best.fit.effects
-        last_round = ev.work - round_start
+        # structure left that no single candidate removes: two round-one candidates at once, then rounds again
+        restarted = True
+        pair = pair_restart(ev, meas, effects, rounds[0], WORK_BUDGET)
+        if pair is None:
+            break
+        effects = pair
     effects = swap_twins(ev, effects, rounds)
     kept = prune(ev, effects)
     while small := [e for e in kept if not nameable_size(e.name, e.value)]:

@@ -13,14 +13,18 @@ the walk's best point (``joint.joint_fit``); the result is assessed by the same 
 
 from __future__ import annotations
 
+from itertools import combinations
+
 import numpy as np
 
-from pipeline.discover.candidates import Evaluator, Scan, make
-from pipeline.discover.evidence import Assessment, Screened, assess
-from pipeline.discover.joint import joint_fit
+from pipeline.discover.candidates import Evaluator, Scan, make, prune
+from pipeline.discover.evidence import MAX_DELTA_BIC, Assessment, Screened, assess, nameable_size
+from pipeline.discover.joint import coordinates, joint_fit
 from pipeline.discover.measurement import Measurement
 from pipeline.model.effects import CATALOGUE, Effect
 
+PAIR_POOL = 6       # round one's best candidates (by held-out gain) a pair is drawn from
+PAIR_SHRINK = 0.5   # a pair must leave at most this share of the structure the effects found leave
 WALK_NFEV = 8       # evaluations of each step's refit of the adopted effects along the profile walk
 
 
@@ -82,3 +86,39 @@ def profile_walk(ev: Evaluator, base: tuple[Effect, ...], name: str, grid: np.nd
                 break
             last = nll
     return best
+
+
+def pair_restart(ev: Evaluator, meas: Measurement, effects: tuple[Effect, ...],
+                 first_round: list[Assessment | Screened], budget: int) -> tuple[Effect, ...] | None:
+    """Two effects that together do what no single one does, for a fresh start of the rounds: round
+    one adopts the candidate that alone removes most (a long loop delay stands in for a softer spring
+    beside a viscous friction), and the rounds after it cannot take that back.  Each pair of round
+    one's best candidates is fitted jointly from their round-one values; the best pair is kept when
+    it beats the effects found by BIC (each parameter charged), leaves at most ``PAIR_SHRINK`` of their
+    structure (a pair of wrong effects can buy a little likelihood without removing the pattern) and,
+    refitted, still needs both members (``prune``) at a nameable size.  None when no pair does."""
+    pool = [a for a in first_round if isinstance(a, Assessment) and a.fit.heldout_nll_gain > 0
+            and nameable_size(a.fit.name, a.fit.value)][:PAIR_POOL]
+    n_obs = meas.n * len(meas.signals)
+    nll_now, k_now = ev.nll(ev.sim(effects)), len(coordinates(effects))
+    left_now = _structure(ev, effects)
+    now = {e.name for e in effects}
+    best: tuple[float, tuple[Effect, ...]] | None = None
+    for a, b in combinations(pool, 2):
+        if {a.fit.name, b.fit.name} == now or ev.work > budget:
+            continue
+        fitted = joint_fit(ev, (a.fit.effect, b.fit.effect))
+        nll = ev.nll(ev.sim(fitted))
+        delta_bic = 2.0 * (nll - nll_now) + (len(coordinates(fitted)) - k_now) * np.log(n_obs)
+        if (delta_bic <= MAX_DELTA_BIC and _structure(ev, fitted) <= PAIR_SHRINK * left_now
+                and (best is None or nll < best[0])):
+            best = (nll, fitted)
+    if best is None:
+        return None
+    kept = prune(ev, best[1])
+    return kept if len(kept) == 2 and all(nameable_size(e.name, e.value) for e in kept) else None
+
+
+def _structure(ev: Evaluator, effects: tuple[Effect, ...]) -> float:
+    """The largest replay MSE above the noise over the signals, in noise variances."""
+    return max(m / ev.floor[s] - 1.0 for s, m in ev.mse(ev.sim(effects)).items())

@@ -87,3 +87,10 @@ def test_three_effects_with_a_spring_behind_a_heavier_rack_are_all_named(tmp_pat
     the rack inertia; no quick candidate passes in round two; the profile walk finds the spring, and
     the backlash follows in round three."""
     _assert_draw_explained(212, {"backlash", "rack_inertia", "spring_stiffness"}, 0.05, tmp_path)
+
+
+def test_a_softer_spring_beside_viscous_friction_is_found_as_a_pair_after_round_one_adopts_a_loop_delay(tmp_path):
+    """Randomised draw 233: springs 24 % soft and b = 4.7e-4 at an 84 ms period.  Round one adopts a
+    long loop delay (0.19 s), which alone removes the most, and no candidate beside it passes; the
+    spring and the viscous friction fitted together from their round-one values remove all of it."""
+    _assert_draw_explained(233, {"spring_stiffness", "viscous_friction"}, 0.05, tmp_path)
