@@ -94,3 +94,11 @@ def test_a_softer_spring_beside_viscous_friction_is_found_as_a_pair_after_round_
     long loop delay (0.19 s), which alone removes the most, and no candidate beside it passes; the
     spring and the viscous friction fitted together from their round-one values remove all of it."""
     _assert_draw_explained(233, {"spring_stiffness", "viscous_friction"}, 0.05, tmp_path)
+
+
+def test_a_backlash_beside_a_heavier_rack_is_named_when_its_signature_falls_to_the_noise_of_both_signals(tmp_path):
+    """Randomised draw 185: a 0.044 rad backlash beside a rack 7.4e-4 kg m^2, 3.3x current noise.  After
+    the rack inertia, the backlash removes the rest; its zero-crossing window then holds ~1.9 noise
+    variances per signal, noise in both the angle and the current, which summed over the two signals
+    (3.8) read as a pattern left."""
+    _assert_draw_explained(185, {"backlash", "rack_inertia"}, 0.1, tmp_path)
