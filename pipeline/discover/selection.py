@@ -43,7 +43,7 @@ from pipeline.discover.joint import effect_intervals, joint_fit, sensitivity
 from pipeline.discover.measurement import Measurement, ambiguous_switches, settle_switches
 from pipeline.discover.residuals import noise_floor
 from pipeline.discover.start_refit import refine_start
-from pipeline.discover.thorough import pair_restart, thorough_round
+from pipeline.discover.thorough import pair_restart, structure_after_start, thorough_round
 from pipeline.model.effects import CATALOGUE, Effect
 
 # After an effect, a further round only while some signal keeps this much structure, in noise variances:
@@ -190,7 +190,7 @@ def _forward(meas: Measurement, names: tuple[str, ...]) -> Selection:
             screened = [Screened(n, round_, float(scans[n].grid[np.argmin(scans[n].nll)]), scan_gain[n])
                         for n in order if n not in full]
             passing = [a for a in assessed if a.accepted]
-            if not passing and effects and max(excess(ev, effects).values()) > STRUCTURE_FLOORS:
+            if not passing and effects and structure_after_start(ev, effects) > STRUCTURE_FLOORS:
                 # nothing passed and the residual is still structure: each candidate again, from its profile walk
                 redone = thorough_round(ev, meas, effects, scan_gain, scans, folds, round_, [*assessed, *screened],
                                         WORK_BUDGET)
@@ -213,7 +213,7 @@ def _forward(meas: Measurement, names: tuple[str, ...]) -> Selection:
                             "runner_up_accepted": bool(runner.accepted)}
             effects = best.fit.effects
             last_round = ev.work - round_start
-        if restarted or not effects or max(excess(ev, effects).values()) <= STRUCTURE_FLOORS or ev.work > WORK_BUDGET:
+        if restarted or not effects or ev.work > WORK_BUDGET or structure_after_start(ev, effects) <= STRUCTURE_FLOORS:
             break
         # structure left that no single candidate removes: two round-one candidates at once, then rounds again
         restarted = True

@@ -21,6 +21,7 @@ from pipeline.discover.candidates import Evaluator, Scan, make, prune
 from pipeline.discover.evidence import MAX_DELTA_BIC, Assessment, Screened, assess, nameable_size
 from pipeline.discover.joint import coordinates, joint_fit
 from pipeline.discover.measurement import Measurement
+from pipeline.discover.start_refit import refine_start
 from pipeline.model.effects import CATALOGUE, Effect
 
 PAIR_POOL = 6       # round one's best candidates (by held-out gain) a pair is drawn from
@@ -122,3 +123,16 @@ def pair_restart(ev: Evaluator, meas: Measurement, effects: tuple[Effect, ...],
 def _structure(ev: Evaluator, effects: tuple[Effect, ...]) -> float:
     """The largest replay MSE above the noise over the signals, in noise variances."""
     return max(m / ev.floor[s] - 1.0 for s, m in ev.mse(ev.sim(effects)).items())
+
+
+def structure_after_start(ev: Evaluator, effects: tuple[Effect, ...]) -> float:
+    """``_structure`` once the start is refined on the whole recording, as the verdict will have it
+    (``start_refit``): a transient the first seconds' start estimate leaves (after a board reset, a
+    slow mode) is not structure worth a thorough round.  The refined start is not kept."""
+    spec = ev.meas.spec(effects)
+    start = ev.meas.x0(spec)
+    if refine_start(ev, effects) is None:
+        return _structure(ev, effects)
+    left = _structure(ev, effects)
+    ev.meas.pin_start(spec, ev.meas.dir, start)
+    return left
