@@ -133,22 +133,24 @@ def select(meas: Measurement, names: tuple[str, ...] | None = None) -> Selection
 
     Inferred switches a sample apart (``ambiguous_switches``) are settled by the rig's model first.
     When that leaves structure no candidate removes and effects were found, they are settled again by
-    the model with those effects, and, if any switch moves, discovery runs again on them: a heavier
-    rack or a backlash shifts where the angle crosses a guard, so the base model can time a switch a
-    sample off, and that one sample is structure that hides the next effect.  The run that leaves
-    less structure is kept."""
+    the model with those effects, and, if any switch moves, the rounds go on from those effects
+    refitted on the new switches: a heavier rack or a backlash shifts where the angle crosses a guard,
+    so the base model can time a switch a sample off, and that one sample is structure that hides the
+    next effect.  The run that leaves
+    less structure is kept.  A pair restart (``thorough.pair_restart``) is tried only on the switches
+    as finally settled."""
     names = tuple(CATALOGUE) if names is None else names
     if not meas.angle_reference_known:
         names = tuple(n for n in names if not only_a_constant_torque(meas, n))
     if not ambiguous_switches(meas):
         return _forward(meas, names)
-    first = _forward(_settled(meas, ()), names)
+    first = _forward(_settled(meas, ()), names, pairs=False)
     if first.verdict != "unexplained" or not first.effects:
         return first
     again = _settled(meas, first.effects)
     if np.array_equal(again.dir, first.meas.dir):
         return first
-    second = _forward(again, names)
+    second = _forward(again, names, first.effects, first.rounds)
     return second if max(second.excess_after.values()) < max(first.excess_after.values()) else first
 
 
@@ -158,13 +160,16 @@ def _settled(meas: Measurement, effects: tuple[Effect, ...]) -> Measurement:
     return settle_switches(meas, lambda m: probe.nll(m.replay(spec)))
 
 
-def _forward(meas: Measurement, names: tuple[str, ...]) -> Selection:
-    """Rounds, twin swaps, pruning and the verdict on a measurement whose switches are settled."""
+def _forward(meas: Measurement, names: tuple[str, ...], found: tuple[Effect, ...] = (),
+             earlier: list[list[Assessment | Screened]] | None = None, pairs: bool = True) -> Selection:
+    """Rounds, twin swaps, pruning and the verdict on a measurement whose switches are settled;
+    ``found``: effects a run on the same recording adopted in its rounds ``earlier``, refitted here
+    and the rounds continued after them; ``pairs``: whether a pair of candidates may restart the rounds."""
     floor = noise_floor(meas, meas.replay(meas.spec()))
     ev = Evaluator(meas, floor)
     folds = folds_by_cycle(meas)
-    effects: tuple[Effect, ...] = ()
-    rounds: list[list[Assessment | Screened]] = []
+    effects: tuple[Effect, ...] = joint_fit(ev, found)
+    rounds: list[list[Assessment | Screened]] = list(earlier or [])[:len(found)]
     near_tie = None
     last_round = 0
     stopped_for_time = False
@@ -213,7 +218,8 @@ def _forward(meas: Measurement, names: tuple[str, ...]) -> Selection:
                             "runner_up_accepted": bool(runner.accepted)}
             effects = best.fit.effects
             last_round = ev.work - round_start
-        if restarted or not effects or ev.work > WORK_BUDGET or structure_after_start(ev, effects) <= STRUCTURE_FLOORS:
+        if (restarted or not pairs or not effects or ev.work > WORK_BUDGET
+                or structure_after_start(ev, effects) <= STRUCTURE_FLOORS):
             break
         # structure left that no single candidate removes: two round-one candidates at once, then rounds again
         restarted = True
