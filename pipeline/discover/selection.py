@@ -59,6 +59,10 @@ MAX_EFFECTS = 3
 # samples, ~8 CPU s) stays within this.  Counted in work, not seconds: the same recording gets the same
 # rounds, and so the same answer, on a busy machine as on an idle one.
 WORK_BUDGET = 6_000_000
+# The thorough round and the pair restart (``thorough``) run only where the angle's zero is known.  After
+# a board reset the start and the counter's zero are fitted per model, so each of their many trial models
+# costs several times what ``Evaluator.work`` counts (the budget would not bound them), and the structure
+# left there is the reset's nuisances (``start_refit``, ``measurement``) more often than a missing effect.
 LATER_FULL_FITS = 3          # every candidate gets the full assessment in round 1; later rounds only the
                              # few that gain most in the coarse scan
 
@@ -195,8 +199,10 @@ def _forward(meas: Measurement, names: tuple[str, ...], found: tuple[Effect, ...
             screened = [Screened(n, round_, float(scans[n].grid[np.argmin(scans[n].nll)]), scan_gain[n])
                         for n in order if n not in full]
             passing = [a for a in assessed if a.accepted]
-            if not passing and effects and structure_after_start(ev, effects) > STRUCTURE_FLOORS:
-                # nothing passed and the residual is still structure: each candidate again, from its profile walk
+            # nothing passed and the residual is still structure: each candidate again, from its profile walk.
+            # Not after a board reset (see above LATER_FULL_FITS).
+            if (not passing and effects and meas.angle_reference_known
+                    and structure_after_start(ev, effects) > STRUCTURE_FLOORS):
                 redone = thorough_round(ev, meas, effects, scan_gain, scans, folds, round_, [*assessed, *screened],
                                         WORK_BUDGET)
                 assessed = [a for a in redone if isinstance(a, Assessment)]
@@ -218,7 +224,7 @@ def _forward(meas: Measurement, names: tuple[str, ...], found: tuple[Effect, ...
                             "runner_up_accepted": bool(runner.accepted)}
             effects = best.fit.effects
             last_round = ev.work - round_start
-        if (restarted or not pairs or not effects or ev.work > WORK_BUDGET
+        if (restarted or not pairs or not effects or ev.work > WORK_BUDGET or not meas.angle_reference_known
                 or structure_after_start(ev, effects) <= STRUCTURE_FLOORS):
             break
         # structure left that no single candidate removes: two round-one candidates at once, then rounds again
