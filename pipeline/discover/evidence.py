@@ -100,7 +100,8 @@ class Screened:
 def signature_energy(name: str, meas: Measurement, ev: Evaluator, effects: tuple[Effect, ...]) -> float:
     """Mean energy of the residual pattern that points at ``name``, in noise variances (~1 for
     pure noise): where the effect declares a local fingerprint (``Effect.SIGNATURE``), the
-    residual there -- right after each switch, near zero velocity, right after each angle zero
+    residual there (averaged over the signals, so pure noise is ~1 with the current beside the angle
+    too, as ``SIGNATURE_NOISE`` assumes) -- right after each switch, near zero velocity, right after each angle zero
     crossing, the bias of the current alone; an effect acting everywhere has no local window,
     so the whole residual.
 
@@ -124,7 +125,7 @@ def signature_energy(name: str, meas: Measurement, ev: Evaluator, effects: tuple
         m = np.ones(meas.n, dtype=bool)
     if not m.any():
         return 0.0
-    return float(sum(np.mean(r[m] ** 2) / ev.floor[s] for s, r in res.items()))
+    return float(np.mean([np.mean(r[m] ** 2) / ev.floor[s] for s, r in res.items()]))
 
 
 def _after(n: int, starts: np.ndarray, width: int) -> np.ndarray:

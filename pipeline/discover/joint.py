@@ -106,13 +106,14 @@ def moved_effects(effects: tuple[Effect, ...], step: np.ndarray, trust: float = 
     return with_values(effects, np.array(out))
 
 
-def joint_fit(ev, effects: tuple[Effect, ...], max_nfev: int = 40) -> tuple[Effect, ...]:
+def joint_fit(ev, effects: tuple[Effect, ...], max_nfev: int = 40, held: tuple[Effect, ...] = ()) -> tuple[Effect, ...]:
     """Every parameter of every effect at once (``scipy.optimize.least_squares``, trust region within the
     bounds), so the result does not depend on the order the effects were found in.
 
     Each signal's residual is divided by its RMS at the start (the concentrated
     likelihood's weights there), each parameter by its own scale (its value, or
-    its typical size near zero); the fit is kept only if the likelihood improves.
+    its typical size near zero); the fit is kept only if the likelihood improves.  ``held``: effects
+    in the model at their given values, not fitted (a profile over one of them).
     """
     if not effects:
         return effects
@@ -122,12 +123,12 @@ def joint_fit(ev, effects: tuple[Effect, ...], max_nfev: int = 40) -> tuple[Effe
     hi = np.array([p.bounds[1] for _, p in coords]) / scale
     margin = 1e-9 * (hi - lo)
     z0 = np.clip(values_of(effects) / scale, lo + margin, hi - margin)
-    start = residuals(ev.meas, ev.sim(effects))
+    start = residuals(ev.meas, ev.sim((*effects, *held)))
     weight = {s: 1.0 / np.sqrt(float(np.mean(r * r)) + 1e-3 * ev.floor[s]) for s, r in start.items()}
     size = sum(len(r) for r in start.values())
 
     def weighted(z: np.ndarray) -> np.ndarray:
-        res = residuals(ev.meas, ev.sim(with_values(effects, z * scale)))
+        res = residuals(ev.meas, ev.sim((*with_values(effects, z * scale), *held)))
         out = np.concatenate([weight[s] * r for s, r in res.items()])
         return out if out.shape == (size,) and np.all(np.isfinite(out)) else np.full(size, 1e6)
 
@@ -136,7 +137,7 @@ def joint_fit(ev, effects: tuple[Effect, ...], max_nfev: int = 40) -> tuple[Effe
     except ValueError:
         return effects
     trial = with_values(effects, sol.x * scale)
-    return trial if ev.nll(ev.sim(trial)) < ev.nll(ev.sim(effects)) else effects
+    return trial if ev.nll(ev.sim((*trial, *held))) < ev.nll(ev.sim((*effects, *held))) else effects
 
 
 def autocorrelation_time(r: np.ndarray, max_lag: int = 50) -> float:

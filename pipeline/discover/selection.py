@@ -43,6 +43,7 @@ from pipeline.discover.joint import effect_intervals, joint_fit, sensitivity
 from pipeline.discover.measurement import Measurement, ambiguous_switches, settle_switches
 from pipeline.discover.residuals import noise_floor
 from pipeline.discover.start_refit import refine_start
+from pipeline.discover.thorough import pair_restart, structure_after_start, thorough_round
 from pipeline.model.effects import CATALOGUE, Effect
 
 # After an effect, a further round only while some signal keeps structure a candidate would have to
@@ -56,6 +57,10 @@ MAX_EFFECTS = 3
 # samples, ~8 CPU s) stays within this.  Counted in work, not seconds: the same recording gets the same
 # rounds, and so the same answer, on a busy machine as on an idle one.
 WORK_BUDGET = 6_000_000
+# The thorough round and the pair restart (``thorough``) run only where the angle's zero is known.  After
+# a board reset the start and the counter's zero are fitted per model, so each of their many trial models
+# costs several times what ``Evaluator.work`` counts (the budget would not bound them), and the structure
+# left there is the reset's nuisances (``start_refit``, ``measurement``) more often than a missing effect.
 LATER_FULL_FITS = 3          # every candidate gets the full assessment in round 1; later rounds only the
                              # few that gain most in the coarse scan
 
@@ -118,34 +123,6 @@ def swap_twins(ev: Evaluator, effects: tuple[Effect, ...],
     return effects
 
 
-def resettle(ev: Evaluator, effects: tuple[Effect, ...], raw: Measurement) -> tuple[Evaluator, tuple[Effect, ...]]:
-    """The ambiguous inferred switches as the angle reads them (``raw``) and decided again under the
-    adopted effects, from there and from the base model's settling, each refitted jointly; the best
-    replay wins.  The base model decided them before the rounds, and a missing effect can tip it
-    the wrong way (a constant torque: the pinion reached the guard one sample later than the base
-    model said), after which the effects fitted settle around the wrong timing; one sample of the
-    wrong command is a transient that outlasts hundreds of samples."""
-    meas = ev.meas
-    if not effects or not ambiguous_switches(meas):
-        return ev, effects
-    best, best_nll = (ev, effects), ev.nll(ev.sim(effects))
-    tried = [meas.dir]
-    for settled in (raw, *(settle_switches(m, lambda m: ev.nll(m.replay(m.spec(effects)))) for m in (meas, raw))):
-        if any(np.array_equal(settled.dir, d) for d in tried):
-            continue
-        tried.append(settled.dir)
-        moved = Evaluator(settled, ev.floor)
-        refit, value = effects, moved.nll(moved.sim(effects))
-        for _ in range(3):              # reweighted as the misfit shrinks (``joint_fit`` weights by it)
-            refit, before = joint_fit(moved, refit), value
-            value = moved.nll(moved.sim(refit))
-            if value > before - 1.0:
-                break
-        if value < best_nll:
-            best, best_nll = (moved, refit), value
-    return best
-
-
 def worth_another_round(left: dict[str, float], n: int) -> bool:
     """Whether any signal keeps structure (MSE above its noise, in noise variances, over ``n`` samples)
     worth another round.  A sensor offset of half a noise sigma next to another effect is a quarter
@@ -154,61 +131,106 @@ def worth_another_round(left: dict[str, float], n: int) -> bool:
 
 
 def select(meas: Measurement, names: tuple[str, ...] | None = None) -> Selection:
-    """The discovery loop on one recording (replay fits; closed loop is confirmed by the caller)."""
+    """The discovery loop on one recording (replay fits; closed loop is confirmed by the caller).
+
+    Inferred switches a sample apart (``ambiguous_switches``) are settled by the rig's model first.
+    When that leaves structure no candidate removes and effects were found, they are settled again by
+    the model with those effects, and, if any switch moves, the rounds go on from those effects
+    refitted on the new switches: a heavier rack or a backlash shifts where the angle crosses a guard,
+    so the base model can time a switch a sample off, and that one sample is structure that hides the
+    next effect.  The run that leaves
+    less structure is kept.  A pair restart (``thorough.pair_restart``) is tried only on the switches
+    as finally settled."""
     names = tuple(CATALOGUE) if names is None else names
     if not meas.angle_reference_known:
         names = tuple(n for n in names if not only_a_constant_torque(meas, n))
-    raw = meas
-    if ambiguous_switches(meas):
-        base_spec = meas.spec()
-        probe = Evaluator(meas, noise_floor(meas, meas.replay(base_spec)))
-        meas = settle_switches(meas, lambda m: probe.nll(m.replay(base_spec)))
+    if not ambiguous_switches(meas):
+        return _forward(meas, names)
+    first = _forward(_settled(meas, ()), names, pairs=False)
+    if first.verdict != "unexplained" or not first.effects:
+        return first
+    again = _settled(meas, first.effects)
+    if np.array_equal(again.dir, first.meas.dir):
+        return first
+    second = _forward(again, names, first.effects, first.rounds)
+    return second if max(second.excess_after.values()) < max(first.excess_after.values()) else first
+
+
+def _settled(meas: Measurement, effects: tuple[Effect, ...]) -> Measurement:
+    spec = meas.spec(effects)
+    probe = Evaluator(meas, noise_floor(meas, meas.replay(meas.spec())))
+    return settle_switches(meas, lambda m: probe.nll(m.replay(spec)))
+
+
+def _forward(meas: Measurement, names: tuple[str, ...], found: tuple[Effect, ...] = (),
+             earlier: list[list[Assessment | Screened]] | None = None, pairs: bool = True) -> Selection:
+    """Rounds, twin swaps, pruning and the verdict on a measurement whose switches are settled;
+    ``found``: effects a run on the same recording adopted in its rounds ``earlier``, refitted here
+    and the rounds continued after them; ``pairs``: whether a pair of candidates may restart the rounds."""
     floor = noise_floor(meas, meas.replay(meas.spec()))
     ev = Evaluator(meas, floor)
     folds = folds_by_cycle(meas)
-    effects: tuple[Effect, ...] = ()
-    rounds: list[list[Assessment | Screened]] = []
+    effects: tuple[Effect, ...] = joint_fit(ev, found)
+    rounds: list[list[Assessment | Screened]] = list(earlier or [])[:len(found)]
     near_tie = None
     last_round = 0
     stopped_for_time = False
-    for round_ in range(1, MAX_EFFECTS + 1):
-        remaining = [n for n in names if n not in {e.name for e in effects}]
-        if not remaining or (effects and not worth_another_round(excess(ev, effects), meas.n)):
+    restarted = False
+    while True:
+        for round_ in range(len(effects) + 1, MAX_EFFECTS + 1):
+            remaining = [n for n in names if n not in {e.name for e in effects}]
+            if not remaining or (effects and not worth_another_round(excess(ev, effects), meas.n)):
+                break
+            round_start = ev.work
+            if round_ > 1 and round_start + last_round > WORK_BUDGET:
+                stopped_for_time = True
+                break
+            nll_now = ev.nll(ev.sim(effects))
+            base_sens = sensitivity(ev, effects) if effects else None
+            scans = {n: scan(ev, effects, n, base_sens) for n in remaining}
+            scan_gain = {n: nll_now - float(np.min(scans[n].nll)) for n in remaining}
+            order = sorted(remaining, key=lambda n: -scan_gain[n])
+            k = len(order) if round_ == 1 else LATER_FULL_FITS
+            full = [n for n in order[:k] if scan_gain[n] > 0]
+            assessed = sorted((assess(ev, meas, effects, n, folds, round_, scans[n]) for n in full),
+                              key=lambda a: -a.fit.heldout_nll_gain)
+            screened = [Screened(n, round_, float(scans[n].grid[np.argmin(scans[n].nll)]), scan_gain[n])
+                        for n in order if n not in full]
+            passing = [a for a in assessed if a.accepted]
+            # nothing passed and the residual is still structure: each candidate again, from its profile walk.
+            # Not after a board reset (see above LATER_FULL_FITS).
+            if (not passing and effects and meas.angle_reference_known
+                    and structure_after_start(ev, effects) > STRUCTURE_FLOORS):
+                redone = thorough_round(ev, meas, effects, scan_gain, scans, folds, round_, [*assessed, *screened],
+                                        WORK_BUDGET)
+                assessed = [a for a in redone if isinstance(a, Assessment)]
+                screened = [a for a in redone if not isinstance(a, Assessment)]
+                passing = [a for a in assessed if a.accepted]
+            rounds.append([*assessed, *screened])
+            if not passing:
+                break
+            best = passing[0]
+            runner = next((a for a in assessed if a is not best), None)
+            if (near_tie is None and runner is not None
+                    and runner.structure_left + 1.0 <= NEAR_TIE * (best.structure_left + 1.0)):
+                near_tie = {"round": round_, "chosen": best.fit.name, "runner_up": runner.fit.name,
+                            "scores": {best.fit.name: best.score, runner.fit.name: runner.score},
+                            "structure_left": {best.fit.name: best.structure_left,
+                                               runner.fit.name: runner.structure_left},
+                            "heldout_nll_gain": {best.fit.name: best.fit.heldout_nll_gain,
+                                                 runner.fit.name: runner.fit.heldout_nll_gain},
+                            "runner_up_accepted": bool(runner.accepted)}
+            effects = best.fit.effects
+            last_round = ev.work - round_start
+        if (restarted or not pairs or not effects or ev.work > WORK_BUDGET or not meas.angle_reference_known
+                or structure_after_start(ev, effects) <= STRUCTURE_FLOORS):
             break
-        round_start = ev.work
-        if round_ > 1 and round_start + last_round > WORK_BUDGET:
-            stopped_for_time = True
+        # structure left that no single candidate removes: two round-one candidates at once, then rounds again
+        restarted = True
+        pair = pair_restart(ev, meas, effects, rounds[0], WORK_BUDGET)
+        if pair is None:
             break
-        nll_now = ev.nll(ev.sim(effects))
-        base_sens = sensitivity(ev, effects) if effects else None
-        scans = {n: scan(ev, effects, n, base_sens) for n in remaining}
-        scan_gain = {n: nll_now - float(np.min(scans[n].nll)) for n in remaining}
-        order = sorted(remaining, key=lambda n: -scan_gain[n])
-        k = len(order) if round_ == 1 else LATER_FULL_FITS
-        full = [n for n in order[:k] if scan_gain[n] > 0]
-        assessed = sorted((assess(ev, meas, effects, n, folds, round_, scans[n]) for n in full),
-                          key=lambda a: -a.fit.heldout_nll_gain)
-        screened = [Screened(n, round_, float(scans[n].grid[np.argmin(scans[n].nll)]), scan_gain[n])
-                    for n in order if n not in full]
-        rounds.append([*assessed, *screened])
-        passing = [a for a in assessed if a.accepted]
-        if not passing:
-            break
-        best = passing[0]
-        runner = next((a for a in assessed if a is not best), None)
-        if (near_tie is None and runner is not None
-                and runner.structure_left + 1.0 <= NEAR_TIE * (best.structure_left + 1.0)):
-            near_tie = {"round": round_, "chosen": best.fit.name, "runner_up": runner.fit.name,
-                        "scores": {best.fit.name: best.score, runner.fit.name: runner.score},
-                        "structure_left": {best.fit.name: best.structure_left,
-                                           runner.fit.name: runner.structure_left},
-                        "heldout_nll_gain": {best.fit.name: best.fit.heldout_nll_gain,
-                                             runner.fit.name: runner.fit.heldout_nll_gain},
-                        "runner_up_accepted": bool(runner.accepted)}
-        effects = best.fit.effects
-        last_round = ev.work - round_start
-    ev, effects = resettle(ev, effects, raw)
-    meas = ev.meas
+        effects = pair
     effects = swap_twins(ev, effects, rounds)
     kept = prune(ev, effects)
     while small := [e for e in kept if not nameable_size(e.name, e.value)]:

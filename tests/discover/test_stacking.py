@@ -65,3 +65,40 @@ def _assert_draw_explained(index: int, hidden: set[str], tolerance: float, work)
     assert d.verdict == "explained"
     for name, v in truth.items():
         assert abs(found[name] - v) <= tolerance * abs(v), name
+
+
+def test_a_stiffer_spring_beside_a_heavier_rack_is_found_by_a_profile_walk_when_no_quick_candidate_passes(tmp_path):
+    """Randomised draw 178: springs 16 % stiff and a rack 9.6e-4 kg m^2.  Round one adopts the rack
+    inertia alone (17 % light); the spring then needs the inertia moved a long way along their shared
+    valley (the oscillation's frequency), beyond the scan's one linear step, so no quick candidate
+    passes.  Walked along its scan points with the inertia refitted at each, the spring passes every rule."""
+    _assert_draw_explained(178, {"rack_inertia", "spring_stiffness"}, 0.05, tmp_path)
+
+
+def test_a_backlash_beside_a_heavier_rack_without_dir_is_named_once_the_switches_are_settled_by_the_rack(tmp_path):
+    """Randomised draw 10, no dir column: a rack 1.54e-3 kg m^2 and a 0.046 rad backlash.  Settled by
+    the base model, one inferred switch is a sample off; with the rack adopted it moves, and the
+    backlash it hid is named (0.048 rad)."""
+    _assert_draw_explained(10, {"rack_inertia", "backlash"}, 0.1, tmp_path)
+
+
+def test_three_effects_with_a_spring_behind_a_heavier_rack_are_all_named(tmp_path):
+    """Randomised draw 212: backlash, a rack 1.04e-3 kg m^2 and springs 20 % stiff.  Round one adopts
+    the rack inertia; no quick candidate passes in round two; the profile walk finds the spring, and
+    the backlash follows in round three."""
+    _assert_draw_explained(212, {"backlash", "rack_inertia", "spring_stiffness"}, 0.05, tmp_path)
+
+
+def test_a_softer_spring_beside_viscous_friction_is_found_as_a_pair_after_round_one_adopts_a_loop_delay(tmp_path):
+    """Randomised draw 233: springs 24 % soft and b = 4.7e-4 at an 84 ms period.  Round one adopts a
+    long loop delay (0.19 s), which alone removes the most, and no candidate beside it passes; the
+    spring and the viscous friction fitted together from their round-one values remove all of it."""
+    _assert_draw_explained(233, {"spring_stiffness", "viscous_friction"}, 0.05, tmp_path)
+
+
+def test_a_backlash_beside_a_heavier_rack_is_named_when_its_signature_falls_to_the_noise_of_both_signals(tmp_path):
+    """Randomised draw 185: a 0.044 rad backlash beside a rack 7.4e-4 kg m^2, 3.3x current noise.  After
+    the rack inertia, the backlash removes the rest; its zero-crossing window then holds ~1.9 noise
+    variances per signal, noise in both the angle and the current, which summed over the two signals
+    (3.8) read as a pattern left."""
+    _assert_draw_explained(185, {"backlash", "rack_inertia"}, 0.1, tmp_path)
