@@ -175,7 +175,8 @@ def _forward(meas: Measurement, names: tuple[str, ...], found: tuple[Effect, ...
     near_tie = None
     last_round = 0
     stopped_for_time = False
-    restarted = False
+    restarted = refilled = False
+    adopted: set[str] = set()
     while True:
         for round_ in range(len(effects) + 1, MAX_EFFECTS + 1):
             remaining = [n for n in names if n not in {e.name for e in effects}]
@@ -222,21 +223,26 @@ def _forward(meas: Measurement, names: tuple[str, ...], found: tuple[Effect, ...
                             "runner_up_accepted": bool(runner.accepted)}
             effects = best.fit.effects
             last_round = ev.work - round_start
-        if (restarted or not pairs or not effects or ev.work > WORK_BUDGET or not meas.angle_reference_known
+        if not (restarted or not pairs or not effects or ev.work > WORK_BUDGET or not meas.angle_reference_known
                 or structure_after_start(ev, effects) <= STRUCTURE_FLOORS):
+            # structure left that no single candidate removes: two round-one candidates at once, then rounds again
+            restarted = True
+            pair = pair_restart(ev, meas, effects, rounds[0], WORK_BUDGET)
+            if pair is not None:
+                effects = pair
+                continue
+        effects = swap_twins(ev, effects, rounds)
+        adopted |= {e.name for e in effects}
+        kept = prune(ev, effects)
+        while small := [e for e in kept if not nameable_size(e.name, e.value)]:
+            kept = joint_fit(ev, tuple(e for e in kept if e is not small[0]))    # refitted jointly it shrank
+        dropped = len(kept) < len(effects)
+        effects = kept
+        # an effect the later ones made redundant freed a round (the last one may not have been run)
+        if refilled or not dropped or len(effects) >= MAX_EFFECTS or ev.work > WORK_BUDGET:
             break
-        # structure left that no single candidate removes: two round-one candidates at once, then rounds again
-        restarted = True
-        pair = pair_restart(ev, meas, effects, rounds[0], WORK_BUDGET)
-        if pair is None:
-            break
-        effects = pair
-    effects = swap_twins(ev, effects, rounds)
-    kept = prune(ev, effects)
-    while small := [e for e in kept if not nameable_size(e.name, e.value)]:
-        kept = joint_fit(ev, tuple(e for e in kept if e is not small[0]))    # refitted jointly it shrank
-    pruned = [e.name for e in effects if e.name not in {k.name for k in kept}]
-    effects = kept
+        refilled = True
+    pruned = [n for n in CATALOGUE if n in adopted - {e.name for e in effects}]
     spans = effect_intervals(sensitivity(ev, effects), effects) if effects else []
     ex_before = excess(ev, ())
     refine_start(ev, effects)

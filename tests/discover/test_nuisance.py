@@ -166,6 +166,13 @@ def test_a_row_lost_at_a_reversal_is_decided_by_the_measured_angle(tmp_path):
     _named_right(*_randomised(8, tmp_path))
 
 
+def test_an_effect_the_later_ones_made_redundant_frees_a_round(tmp_path):
+    """Randomised draw 196 (seed 15): a sensor offset beside a rack inertia and a voltage drop.  Round two
+    took Coulomb friction, round three the voltage drop, which made the friction redundant (pruned); the
+    three rounds were spent and the offset, which passes every rule, never had its own."""
+    _named_right(*_randomised(196, tmp_path))
+
+
 def test_a_sensor_offset_is_not_asked_to_remove_the_floors_own_error(tmp_path):
     """Randomised draw 242 (seed 15): backlash and a 0.11 A offset on a 322-sample segment after a board
     reset.  The current's floor is itself estimated, to ~sqrt(3/n) (10 % here): the true model left 0.18
