@@ -144,6 +144,10 @@ def select(meas: Measurement, names: tuple[str, ...] | None = None) -> Selection
     names = tuple(CATALOGUE) if names is None else names
     if not meas.angle_reference_known:
         names = tuple(n for n in names if not only_a_constant_torque(meas, n))
+    return _from_the_runner_up(_settled_and_selected(meas, names), names)
+
+
+def _settled_and_selected(meas: Measurement, names: tuple[str, ...]) -> Selection:
     if not ambiguous_switches(meas):
         return _forward(meas, names)
     first = _forward(_settled(meas, ()), names, pairs=False)
@@ -153,7 +157,25 @@ def select(meas: Measurement, names: tuple[str, ...] | None = None) -> Selection
     if np.array_equal(again.dir, first.meas.dir):
         return first
     second = _forward(again, names, first.effects, first.rounds)
-    return second if max(second.excess_after.values()) < max(first.excess_after.values()) else first
+    return _less_structure(second, first)
+
+
+def _less_structure(a: Selection, b: Selection) -> Selection:
+    return a if max(a.excess_after.values()) < max(b.excess_after.values()) else b
+
+
+def _from_the_runner_up(sel: Selection, names: tuple[str, ...]) -> Selection:
+    """When the rounds leave structure, the rounds again from round one's runner-up (if it passed every
+    rule), and the run that leaves less structure is kept.  Round one picks among near-twins (Coulomb
+    or viscous friction, a voltage drop or viscous friction) before the others are known: the wrong
+    twin fits best alone, then no second effect opens beside it.  Not after a board reset (its start
+    and counter zero are refitted per trial model, as for ``thorough``)."""
+    if sel.verdict != "unexplained" or not sel.effects or not sel.rounds or not sel.meas.angle_reference_known:
+        return sel
+    passed = [a for a in sel.rounds[0] if isinstance(a, Assessment) and a.accepted]
+    if len(passed) < 2:
+        return sel
+    return _less_structure(_forward(sel.meas, names, (passed[1].fit.effect,), sel.rounds[:1]), sel)
 
 
 def _settled(meas: Measurement, effects: tuple[Effect, ...]) -> Measurement:
