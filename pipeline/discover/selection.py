@@ -99,17 +99,19 @@ def excess(ev: Evaluator, effects: tuple[Effect, ...]) -> dict[str, float]:
 
 def swap_twins(ev: Evaluator, effects: tuple[Effect, ...],
                rounds: list[list[Assessment | Screened]]) -> tuple[Effect, ...]:
-    """Each adopted effect against the candidates that also passed every check in its round, with
-    the effects adopted later now beside them: a round picks among near-twins (a softer spring and a
+    """Each adopted effect against the candidates that also passed every check in its round or an
+    earlier one (a later round assesses only the few its scan ranks first), with the effects adopted
+    later now beside them: a round picks among near-twins (a softer spring and a
     heavier rack both slow the oscillation) before the later effects are known, and the choice is
     right only once they are.  A twin replaces the effect when, all refitted jointly, it fits every
     sample better by half ``MAX_DELTA_BIC`` (equal parameter counts: the likelihoods compare)."""
     nll = ev.nll(ev.sim(effects))
-    for rnd in rounds:
+    for r, rnd in enumerate(rounds):
         adopted = next((a.fit.name for a in rnd if a.accepted and a.fit.name in {e.name for e in effects}), None)
         if adopted is None:
             continue
-        for twin in (a for a in rnd if a.accepted and a.fit.name not in {e.name for e in effects}):
+        passed = {a.fit.name: a for earlier in rounds[:r + 1] for a in earlier if a.accepted}
+        for twin in (a for a in passed.values() if a.fit.name not in {e.name for e in effects}):
             i = next(k for k, e in enumerate(effects) if e.name == adopted)
             trial = joint_fit(ev, (*effects[:i], twin.fit.effect, *effects[i + 1:]))
             trial_nll = ev.nll(ev.sim(trial))
