@@ -135,8 +135,7 @@ class Measurement:
         z0 = np.array(start.x0 if start.z is None else start.z, dtype=float)
 
         def outputs(z: np.ndarray) -> np.ndarray:
-            at = replace(start, z=tuple(z), x0=tuple(z) if not start.lead_s else start.x0)
-            sim = self.run(at, plant, d)
+            sim = self.run(start.with_z(z), plant, d)
             parts = [sim.theta / np.sqrt(self.observed["theta"][1])]
             if self.current is not None:
                 parts.append((sim.current + I0) / np.sqrt(self.observed["current"][1]))

@@ -57,10 +57,6 @@ MAX_EFFECTS = 3
 # samples, ~8 CPU s) stays within this.  Counted in work, not seconds: the same recording gets the same
 # rounds, and so the same answer, on a busy machine as on an idle one.
 WORK_BUDGET = 6_000_000
-# The thorough round and the pair restart (``thorough``) run only where the angle's zero is known.  After
-# a board reset the start and the counter's zero are fitted per model, so each of their many trial models
-# costs several times what ``Evaluator.work`` counts (the budget would not bound them), and the structure
-# left there is the reset's nuisances (``start_refit``, ``measurement``) more often than a missing effect.
 LATER_FULL_FITS = 3          # every candidate gets the full assessment in round 1; later rounds only the
                              # few that gain most in the coarse scan
 
@@ -91,6 +87,15 @@ def only_a_constant_torque(meas: Measurement, name: str) -> bool:
     base = meas.spec()
     spec = meas.spec((CATALOGUE[name].at(CATALOGUE[name].PARAMS[0].typical),))
     return [f.name for f in fields(base) if getattr(base, f.name) != getattr(spec, f.name)] == ["torque"]
+
+
+def wide_searches(meas: Measurement) -> bool:
+    """Whether the searches beyond the rounds (the thorough round, the pair restart, the runner-up's
+    rounds) may run: only where the angle's zero is known.  After a board reset the start and the
+    counter's zero are fitted per model, so each of their many trial models costs several times what
+    ``Evaluator.work`` counts (the budget would not bound them), and the structure left there is the
+    reset's nuisances (``start_refit``, ``measurement``) more often than a missing effect."""
+    return meas.angle_reference_known
 
 
 def excess(ev: Evaluator, effects: tuple[Effect, ...]) -> dict[str, float]:
@@ -140,8 +145,7 @@ def select(meas: Measurement, names: tuple[str, ...] | None = None) -> Selection
     the model with those effects, and, if any switch moves, the rounds go on from those effects
     refitted on the new switches: a heavier rack or a backlash shifts where the angle crosses a guard,
     so the base model can time a switch a sample off, and that one sample is structure that hides the
-    next effect.  The run that leaves
-    less structure is kept.  A pair restart (``thorough.pair_restart``) is tried only on the switches
+    next effect.  The run that leaves less structure is kept.  A pair restart (``thorough.pair_restart``) is tried only on the switches
     as finally settled."""
     names = tuple(CATALOGUE) if names is None else names
     if not meas.angle_reference_known:
@@ -170,9 +174,8 @@ def _from_the_runner_up(sel: Selection, names: tuple[str, ...]) -> Selection:
     """When the rounds leave structure, the rounds again from round one's runner-up (if it passed every
     rule), and the run that leaves less structure is kept.  Round one picks among near-twins (Coulomb
     or viscous friction, a voltage drop or viscous friction) before the others are known: the wrong
-    twin fits best alone, then no second effect opens beside it.  Not after a board reset (its start
-    and counter zero are refitted per trial model, as for ``thorough``)."""
-    if sel.verdict != "unexplained" or not sel.effects or not sel.rounds or not sel.meas.angle_reference_known:
+    twin fits best alone, then no second effect opens beside it (``wide_searches`` only)."""
+    if sel.verdict != "unexplained" or not sel.effects or not sel.rounds or not wide_searches(sel.meas):
         return sel
     passed = [a for a in sel.rounds[0] if isinstance(a, Assessment) and a.accepted]
     if len(passed) < 2:
@@ -210,44 +213,16 @@ def _forward(meas: Measurement, names: tuple[str, ...], found: tuple[Effect, ...
             if round_ > 1 and round_start + last_round > WORK_BUDGET:
                 stopped_for_time = True
                 break
-            nll_now = ev.nll(ev.sim(effects))
-            base_sens = sensitivity(ev, effects) if effects else None
-            scans = {n: scan(ev, effects, n, base_sens) for n in remaining}
-            scan_gain = {n: nll_now - float(np.min(scans[n].nll)) for n in remaining}
-            order = sorted(remaining, key=lambda n: -scan_gain[n])
-            k = len(order) if round_ == 1 else LATER_FULL_FITS
-            full = [n for n in order[:k] if scan_gain[n] > 0]
-            assessed = sorted((assess(ev, meas, effects, n, folds, round_, scans[n]) for n in full),
-                              key=lambda a: -a.fit.heldout_nll_gain)
-            screened = [Screened(n, round_, float(scans[n].grid[np.argmin(scans[n].nll)]), scan_gain[n])
-                        for n in order if n not in full]
-            passing = [a for a in assessed if a.accepted]
-            # nothing passed and the residual is still structure: each candidate again, from its profile walk.
-            # Not after a board reset (see above LATER_FULL_FITS).
-            if (not passing and effects and meas.angle_reference_known
-                    and structure_after_start(ev, effects) > STRUCTURE_FLOORS):
-                redone = thorough_round(ev, meas, effects, scan_gain, scans, folds, round_, [*assessed, *screened],
-                                        WORK_BUDGET)
-                assessed = [a for a in redone if isinstance(a, Assessment)]
-                screened = [a for a in redone if not isinstance(a, Assessment)]
-                passing = [a for a in assessed if a.accepted]
+            assessed, screened = _round(ev, meas, effects, remaining, folds, round_)
             rounds.append([*assessed, *screened])
+            passing = [a for a in assessed if a.accepted]
             if not passing:
                 break
             best = passing[0]
-            runner = next((a for a in assessed if a is not best), None)
-            if (near_tie is None and runner is not None
-                    and runner.structure_left + 1.0 <= NEAR_TIE * (best.structure_left + 1.0)):
-                near_tie = {"round": round_, "chosen": best.fit.name, "runner_up": runner.fit.name,
-                            "scores": {best.fit.name: best.score, runner.fit.name: runner.score},
-                            "structure_left": {best.fit.name: best.structure_left,
-                                               runner.fit.name: runner.structure_left},
-                            "heldout_nll_gain": {best.fit.name: best.fit.heldout_nll_gain,
-                                                 runner.fit.name: runner.fit.heldout_nll_gain},
-                            "runner_up_accepted": bool(runner.accepted)}
+            near_tie = near_tie or _near_tie(round_, best, assessed)
             effects = best.fit.effects
             last_round = ev.work - round_start
-        if not (restarted or not pairs or not effects or ev.work > WORK_BUDGET or not meas.angle_reference_known
+        if not (restarted or not pairs or not effects or ev.work > WORK_BUDGET or not wide_searches(meas)
                 or structure_after_start(ev, effects) <= STRUCTURE_FLOORS):
             # structure left that no single candidate removes: two round-one candidates at once, then rounds again
             restarted = True
@@ -281,6 +256,44 @@ def _forward(meas: Measurement, names: tuple[str, ...], found: tuple[Effect, ...
                      failures=ev.failures, command_before=ev.command_for(()),
                      command_after=ev.command_for(effects), meas=meas, stopped_for_time=stopped_for_time,
                      pruned=pruned, intervals=spans)
+
+
+
+def _round(ev: Evaluator, meas: Measurement, effects: tuple[Effect, ...], remaining: list[str],
+           folds: tuple[np.ndarray, np.ndarray], round_: int) -> tuple[list[Assessment], list[Screened]]:
+    """One round: every remaining candidate scanned, the best by the scan (all in round one) assessed;
+    when none passes and structure is left, each again from its profile walk (``thorough_round``)."""
+    nll_now = ev.nll(ev.sim(effects))
+    base_sens = sensitivity(ev, effects) if effects else None
+    scans = {n: scan(ev, effects, n, base_sens) for n in remaining}
+    scan_gain = {n: nll_now - float(np.min(scans[n].nll)) for n in remaining}
+    order = sorted(remaining, key=lambda n: -scan_gain[n])
+    k = len(order) if round_ == 1 else LATER_FULL_FITS
+    full = [n for n in order[:k] if scan_gain[n] > 0]
+    assessed = sorted((assess(ev, meas, effects, n, folds, round_, scans[n]) for n in full),
+                      key=lambda a: -a.fit.heldout_nll_gain)
+    screened = [Screened(n, round_, float(scans[n].grid[np.argmin(scans[n].nll)]), scan_gain[n])
+                for n in order if n not in full]
+    if (not any(a.accepted for a in assessed) and effects and wide_searches(meas)
+            and structure_after_start(ev, effects) > STRUCTURE_FLOORS):
+        redone = thorough_round(ev, meas, effects, scan_gain, scans, folds, round_, [*assessed, *screened],
+                                WORK_BUDGET)
+        assessed = [a for a in redone if isinstance(a, Assessment)]
+        screened = [a for a in redone if not isinstance(a, Assessment)]
+    return assessed, screened
+
+
+def _near_tie(round_: int, best: Assessment, assessed: list[Assessment]) -> dict | None:
+    """The runner-up when it leaves at most ``NEAR_TIE`` times the winner's held-out structure."""
+    runner = next((a for a in assessed if a is not best), None)
+    if runner is None or runner.structure_left + 1.0 > NEAR_TIE * (best.structure_left + 1.0):
+        return None
+    return {"round": round_, "chosen": best.fit.name, "runner_up": runner.fit.name,
+            "scores": {best.fit.name: best.score, runner.fit.name: runner.score},
+            "structure_left": {best.fit.name: best.structure_left, runner.fit.name: runner.structure_left},
+            "heldout_nll_gain": {best.fit.name: best.fit.heldout_nll_gain,
+                                 runner.fit.name: runner.fit.heldout_nll_gain},
+            "runner_up_accepted": bool(runner.accepted)}
 
 
 def check_declared(meas: Measurement, floor: dict[str, float]) -> list[dict]:

@@ -88,9 +88,7 @@ def refine_start(ev: Evaluator, effects: tuple[Effect, ...]) -> Start | None:
     start = meas.x0(full, command)
     z0 = np.array(start.x0 if start.z is None else start.z, dtype=float)
 
-    def at(z: np.ndarray) -> Start:
-        return replace(start, z=tuple(float(v) for v in z), x0=tuple(float(v) for v in z) if not start.lead_s
-                       else start.x0)
+    at = start.with_z
 
     def stacked(z: np.ndarray, weights: dict[str, float] | None = None) -> tuple[np.ndarray, dict[str, float]]:
         sim = meas.run(at(z), spec, command)

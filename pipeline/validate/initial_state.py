@@ -100,10 +100,9 @@ class _Problem:
         self.lead = lead_offsets(float(spec.Td), float(spec.period_s))
         self.m = len(self.lead)
         # the sketch's own loop instants: a row lost over serial is simulated too (as ``Start.simulate``
-        # replays it), its command decided by the sketch's rule on the measured angle (``_loop_log``)
+        # replays it), its command decided by the sketch's rule on the measured angle (``set_log``)
         t_loop, _, self.kept = with_lost_samples(t[:n], np.zeros(n, dtype=np.int8))
         self.t = np.concatenate([t[0] + self.lead, t_loop])
-        self.log = np.zeros(n, dtype=np.int8)          # the logged command, set per estimate
         self.names = [s for s in ("theta", "current") if s in observed]
         ys, ok, which = [], [], []
         for i, s in enumerate(self.names):
@@ -119,13 +118,14 @@ class _Problem:
         self._runs: dict[bytes, SimResult] = {}
         self.theta_rows = (np.array(self.names) == "theta")[self.which].astype(float)
         self.theta_measured = np.asarray(observed["theta"][0][:n], dtype=float) if "theta" in observed else None
+        self.set_log(np.zeros(n, dtype=np.int8))       # the logged command, set per estimate
 
     def run(self, z, commands, *, logged: bool = True) -> SimResult:
         """Replay from ``z`` under the pre-log ``commands`` and (``logged``) the logged ones, else motor off.
 
         Remembered by the exact inputs until ``forget_runs``: a Gauss-Newton refinement asks again for
         the state it has just tried or stepped from (its Jacobian's base point, the next call's start)."""
-        loop_log = self._loop_log(self.log) if logged else np.zeros(len(self.t) - self.m, dtype=np.int8)
+        loop_log = self.loop_log if logged else np.zeros(len(self.t) - self.m, dtype=np.int8)
         log = np.concatenate([np.asarray(commands, dtype=np.int8), loop_log])
         key = np.asarray(z, dtype=float).tobytes() + log.tobytes()
         if key not in self._runs:
@@ -136,13 +136,13 @@ class _Problem:
     def forget_runs(self) -> None:
         self._runs.clear()
 
-    def _loop_log(self, log: np.ndarray) -> np.ndarray:
-        """The logged commands on the loop's instants (``with_lost_samples``: a lost row's command by the
-        sketch's rule on the measured angle, its own count's frame), fixed by the data, not by the
-        model's angle, so the replay stays affine in x0."""
-        if self.kept[-1] + 1 == len(self.kept):
-            return log
-        return with_lost_samples(self.t[self.m:][self.kept], log, self.theta_measured, float(self.spec.guard_rad))[1]
+    def set_log(self, log: np.ndarray) -> None:
+        """The logged commands of this estimate, and on the loop's instants (``with_lost_samples``: a lost
+        row's command by the sketch's rule on the measured angle, its own count's frame), fixed by the
+        data, not by the model's angle, so the replay stays affine in x0."""
+        self.log = log
+        self.loop_log = log if self.kept[-1] + 1 == len(self.kept) else with_lost_samples(
+            self.t[self.m:][self.kept], log, self.theta_measured, float(self.spec.guard_rad))[1]
 
     def outputs(self, sim: SimResult, measured: bool = True) -> np.ndarray:
         """Model outputs at the real samples (``measured``: the current as the sensor reads it, + I0)."""
@@ -343,7 +343,7 @@ class StartEstimator:
         p = self.p
         p.forget_runs()
         key = self.window(dir_log)
-        p.log = np.frombuffer(key, dtype=np.int8).copy()
+        p.set_log(np.frombuffer(key, dtype=np.int8).copy())
         if key not in self._base:
             self._base[key] = p.y - p.outputs(p.run((0.0, 0.0, 0.0), np.zeros(p.m, dtype=np.int8)), measured=False)
         p.I0 = float(I0)

@@ -30,6 +30,11 @@ class Start:
         """A start known exactly (a simulation from rest, a test)."""
         return cls(x0=tuple(map(float, x0)), sigma=(0.0, 0.0, 0.0))
 
+    def with_z(self, z) -> "Start":
+        """This start moved to the state ``z`` at its first instant (x0 too, when there is no lead-in)."""
+        z = tuple(float(v) for v in z)
+        return replace(self, z=z, x0=z if not self.lead_s else self.x0)
+
     def simulate(self, spec: PlantSpec, t: np.ndarray, dir_log: np.ndarray, *, closed_loop: bool,
                  angle: np.ndarray | None = None) -> SimResult:
         """``simulate`` from this start at the instants ``t`` (replay, or closed loop after the log's start),
