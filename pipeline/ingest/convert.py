@@ -19,17 +19,21 @@ from pipeline.errors import IngestError
 from pipeline.ingest.timing import COUNTER_RANGE, UNIT_S
 
 MIN_REST_SAMPLES = 3          # fewest samples at rest that give a zero estimate worth reporting
+REST_TRIM = 4.0               # robust sigmas (at least one ADC step) of the rest readings kept for the zero
+_MAD = 0.6744897501960817     # median |N(0,1)|
 
 
 @dataclass(frozen=True)
 class ZeroEstimate:
     zero_v: float
     spread_v: float           # standard deviation of the rest samples' voltage
-    samples: int
+    samples: int              # the rest readings averaged
     method: str               # "configured", "dir == 0", "before the encoder first moves"
+    standard_error_v: float = 0.0    # of zero_v (0 when configured: a user's number is taken as exact)
 
     def to_dict(self) -> dict:
-        return {"zero_v": self.zero_v, "spread_v": self.spread_v, "samples": self.samples, "method": self.method}
+        return {"zero_v": self.zero_v, "spread_v": self.spread_v, "samples": self.samples, "method": self.method,
+                "standard_error_v": self.standard_error_v}
 
 
 def range_violations(values: dict[str, np.ndarray], cfg: RigConfig) -> tuple[np.ndarray, dict[int, str]]:
@@ -93,17 +97,21 @@ def estimate_zero(values: dict[str, np.ndarray], cfg: RigConfig, source: str) ->
         raise IngestError(f"current_sensor.zero_v = \"auto\" needs at least {MIN_REST_SAMPLES} samples at rest "
                           f"({method}), found {int(rest.sum())}; log a motor-off pre-roll or set zero_v in volts",
                           path=source, key="current_sensor.zero_v")
-    v = volts[rest]
-    return ZeroEstimate(interquartile_mean(v), float(np.std(v)), int(rest.sum()), method)
+    kept = trimmed(volts[rest], volts_per_step(cfg))
+    return ZeroEstimate(float(np.mean(kept)), float(np.std(kept)), len(kept), method,
+                        standard_error_v=float(np.std(kept) / np.sqrt(len(kept))))
 
 
-def interquartile_mean(v: np.ndarray) -> float:
-    """The mean of the middle half: robust to a garbled reading, as the median is, but not rounded to
-    a whole ADC step as the median of integer readings is (a step of the 20 A part is 49 mA: a
-    zero that far off is a current-sensor offset discovery would rightly name)."""
-    v = np.sort(np.asarray(v, dtype=float))
-    k = len(v) // 4
-    return float(np.mean(v[k:len(v) - k]))
+def trimmed(v: np.ndarray, step: float) -> np.ndarray:
+    """The readings within ``REST_TRIM`` robust sigmas of their median, whose mean is the zero: robust
+    to a garbled reading, as the median is, but neither rounded to a whole ADC step, as the median of
+    integer codes is (a step of the 20 A part is 49 mA), nor blind to the noise's dithering between
+    codes, as a mean of the middle half is (with half a step to two steps of noise its error was
+    1.1 to 3 times the mean's).  The robust sigma is at least a step: most rest codes may be one value."""
+    v = np.asarray(v, dtype=float)
+    centre = float(np.median(v))
+    scale = max(float(np.median(np.abs(v - centre))) / _MAD, step)
+    return v[np.abs(v - centre) <= REST_TRIM * scale]
 
 
 def rad_per_count(cfg: RigConfig) -> float:
