@@ -34,6 +34,10 @@ SIGNATURE_SHRINK = 0.5       # the motivating pattern must at least halve ...
 SIGNATURE_NOISE = 3.0        # ... or fall to this many noise variances
 DOMINANT_SHARE = 0.8         # ... or the candidate remove this share of all held-out structure
 STRUCTURE_FLOORS = 25.0      # residual MSE above this many noise variances is structure
+# An effect whose value is also a zero ingest read off the data (``Param.zero_of``: a current zero
+# from rest readings) must stand this many of that zero's standard errors clear of it, or the zero's
+# own error explains it as well (by chance a zero is 3 standard errors off once in ~370 recordings)
+ZERO_SIGMAS = 3.0
 MIN_SIZE_SHARE = 0.1         # smallest nameable effect, as a share of its typical size (MODEL.md's catalogue)
 
 
@@ -158,7 +162,7 @@ def assess(ev: Evaluator, meas: Measurement, effects: tuple[Effect, ...], name: 
         "heldout": a.heldout_share >= MIN_HELDOUT_SHARE and a.worst_worsening_floors <= MAX_WORSENING_FLOORS
                    and fit.heldout_nll_gain > 0,
         "bic": a.delta_bic <= MAX_DELTA_BIC,
-        "interval_excludes_null": fit.excludes_null,
+        "interval_excludes_null": fit.excludes_null and beyond_zero_error(fit, meas, ev.floor),
         # a candidate that removes most of the held-out structure has shown its pattern; its
         # local window may then hold what another, stacked effect leaves behind
         "signature_removed": (sig_a <= SIGNATURE_SHRINK * sig_b or sig_a <= SIGNATURE_NOISE
@@ -166,6 +170,18 @@ def assess(ev: Evaluator, meas: Measurement, effects: tuple[Effect, ...], name: 
         "size": nameable_size(fit.name, fit.value),
     }
     return a
+
+
+def beyond_zero_error(fit: Fit, meas: Measurement, floor: dict[str, float]) -> bool:
+    """Whether the candidate stands ``ZERO_SIGMAS`` clear of the error of a zero read off the data
+    that its value is confounded with (True when there is no such zero).  That zero is a mean of
+    rest readings, whose error is the signal's noise floor over their number: the floor is read off
+    the whole recording, the rest readings' own spread off a few (11 readings read it 28 % low on a randomised draw)."""
+    p = CATALOGUE[fit.name].PARAMS[0]
+    rest = meas.zero_samples.get(p.zero_of, 0)
+    if not rest or p.zero_of not in floor:
+        return True
+    return abs(fit.value - p.absent) > ZERO_SIGMAS * float(np.sqrt(floor[p.zero_of] / rest))
 
 
 def nameable_size(name: str, value: float) -> bool:

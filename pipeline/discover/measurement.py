@@ -44,6 +44,9 @@ class Measurement:
     # False for a segment after a board reset: the counter restarted wherever the pinion was, so
     # where the springs rest in its angle is a nuisance (a constant in the angle), not a datum
     angle_reference_known: bool = True
+    # per signal whose zero ingest read off the data itself (a current zero = "auto"), the number of
+    # rest readings it is the mean of: an offset within that mean's error may be the zero's own
+    zero_samples: dict[str, int] = field(default_factory=dict, compare=False)
     # start estimators per plant without sensor offset, and their starts per (plant, the command's
     # first seconds, offset); shared by ``replace``d copies, hence keyed on the command too
     _estimators: dict = field(default_factory=dict, compare=False, repr=False, hash=False)
@@ -289,7 +292,8 @@ def _column(kin: pd.DataFrame, name: str) -> np.ndarray | None:
 
 
 def measurement_from_kinematics(kin: pd.DataFrame, config: RigConfig, name: str,
-                                angle_reference_known: bool = True) -> Measurement:
+                                angle_reference_known: bool = True,
+                                zero_samples: dict[str, int] | None = None) -> Measurement:
     """Arrays for fitting from a kinematics table; refuses tables discovery cannot use."""
     if "t_s" in kin.columns and "theta_rad" not in kin.columns:
         raise PdrError("discovery needs the angle: this recording has no encoder column (columns.counts = \"\"), "
@@ -326,7 +330,7 @@ def measurement_from_kinematics(kin: pd.DataFrame, config: RigConfig, name: str,
         t_fit = t
     return Measurement(name=name, config=config, kinematics=kin, t=t, t_fit=t_fit, theta=theta, omega=omega,
                        current=current, dir=d, dir_source=source, samples_in_recording=total,
-                       angle_reference_known=angle_reference_known)
+                       angle_reference_known=angle_reference_known, zero_samples=dict(zero_samples or {}))
 
 
 def _command(kin: pd.DataFrame) -> tuple[np.ndarray | None, str]:

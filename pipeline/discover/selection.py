@@ -26,7 +26,8 @@ residual is at the noise floor; ``explained`` when effects were added and what
 is left is within ``STRUCTURE_FLOORS`` of it; ``unexplained`` when structure
 remains that no candidate removes (effects that passed every rule on the way
 are still listed: a hidden viscous friction next to an uncatalogued torque is
-named, the torque is not).  A near tie between the two best candidates is
+named, the torque is not; but not a sensor's zero, which only a model that gets
+the other signals right can tell from a plant error).  A near tie between the two best candidates is
 reported with both scores.
 """
 
@@ -241,11 +242,15 @@ def _forward(meas: Measurement, names: tuple[str, ...], found: tuple[Effect, ...
         if refilled or not dropped or len(effects) >= MAX_EFFECTS or ev.work > WORK_BUDGET:
             break
         refilled = True
-    pruned = [n for n in CATALOGUE if n in adopted - {e.name for e in effects}]
-    spans = effect_intervals(sensitivity(ev, effects), effects) if effects else []
     ex_before = excess(ev, ())
     refine_start(ev, effects)
     ex_after = excess(ev, effects)
+    if unreadable := [e for e in effects if _zero_beside_structure(e, ex_after)]:
+        effects = joint_fit(ev, tuple(e for e in effects if e not in unreadable)) if len(effects) > 1 else ()
+        refine_start(ev, effects)
+        ex_after = excess(ev, effects)
+    pruned = [n for n in CATALOGUE if n in adopted - {e.name for e in effects}]
+    spans = effect_intervals(sensitivity(ev, effects), effects) if effects else []
     structured = max(ex_after.values()) > STRUCTURE_FLOORS
     if structured:
         verdict = "unexplained"
@@ -257,6 +262,15 @@ def _forward(meas: Measurement, names: tuple[str, ...], found: tuple[Effect, ...
                      command_after=ev.command_for(effects), meas=meas, stopped_for_time=stopped_for_time,
                      pruned=pruned, intervals=spans)
 
+
+
+def _zero_beside_structure(effect: Effect, ex_after: dict[str, float]) -> bool:
+    """Whether ``effect`` is a sensor's zero (``Param.zero_of``) while another signal keeps structure:
+    a plant the model gets wrong also moves that signal's mean (a hot winding's smaller current, over
+    unequal times in each direction, reads as an offset), and only the other signals tell the two
+    apart, so such a zero is not named."""
+    signal = effect.PARAMS[0].zero_of
+    return bool(signal) and any(x > STRUCTURE_FLOORS for s, x in ex_after.items() if s != signal)
 
 
 def _round(ev: Evaluator, meas: Measurement, effects: tuple[Effect, ...], remaining: list[str],

@@ -65,11 +65,14 @@ def _errors(kin: pd.DataFrame, sims: dict[str, SimResult]) -> dict[str, dict[str
     return {way: mse_only(signal_errors(kin, sims[way])) for way in WAYS}
 
 
-def discover(kin: pd.DataFrame, config: RigConfig, name: str, after_reset: bool = False) -> Discovery:
+def discover(kin: pd.DataFrame, config: RigConfig, name: str, after_reset: bool = False,
+             zero_samples: dict[str, int] | None = None) -> Discovery:
     """The whole workflow on one kinematics table (no I/O); ``after_reset``: the table is a segment
-    that began after a board reset (its angle's zero is wherever the counter restarted)."""
+    that began after a board reset (its angle's zero is wherever the counter restarted);
+    ``zero_samples``: per signal whose zero ingest read off rest readings, how many."""
     t0 = time.perf_counter()
-    sel = select(measurement_from_kinematics(kin, config, name, angle_reference_known=not after_reset))
+    sel = select(measurement_from_kinematics(kin, config, name, angle_reference_known=not after_reset,
+                                             zero_samples=zero_samples))
     meas = sel.meas
     base = meas.simulate_ways(meas.spec(), sel.command_before)
     final = meas.simulate_ways(meas.spec(sel.effects), sel.command_after) if sel.effects else base
@@ -166,8 +169,9 @@ def discovery_json(d: Discovery, recording: str) -> dict:
         out["declared_too_large"] = d.declared_too_large
     if d.selection.pruned:
         out["pruned"] = {"effects": d.selection.pruned,
-                         "why": "accepted in an earlier round; with the later effects refitted its interval "
-                                "includes 'no effect', so it was dropped"}
+                         "why": "accepted in an earlier round, then dropped: with the later effects refitted "
+                                "its interval includes 'no effect', or, a sensor's zero, the other signals keep "
+                                "structure, and a plant the model gets wrong moves that sensor's mean too"}
     if d.selection.stopped_for_time:
         out["stopped_for_time"] = ("a further round of candidates was not started: at the pace of the last "
                                    "round it would have passed the work budget (simulated samples, about 8 CPU s)")
@@ -178,20 +182,32 @@ def discovery_json(d: Discovery, recording: str) -> dict:
 
 # ------------------------------------------------------------------ shell
 
-def after_board_reset(paths: RunPaths) -> bool:
-    """Whether the run is a segment after the capture's first (ingest starts a segment at each board reset)."""
+def _ingest_segment(paths: RunPaths) -> dict:
+    """The run's segment in its ingest report ({} when there is none to read)."""
     import json
 
     try:
         report = json.loads(paths.ingest_report.read_text(encoding="utf-8"))
     except (OSError, ValueError):
-        return False
-    return any(seg.get("run") == report.get("run") and seg.get("index", 0) > 0
-               for seg in report.get("segments", []) if isinstance(seg, dict))
+        return {}
+    return next((seg for seg in report.get("segments", [])
+                 if isinstance(seg, dict) and seg.get("run") == report.get("run")), {})
+
+
+def after_board_reset(paths: RunPaths) -> bool:
+    """Whether the run is a segment after the capture's first (ingest starts a segment at each board reset)."""
+    return _ingest_segment(paths).get("index", 0) > 0
+
+
+def zero_samples(paths: RunPaths) -> dict[str, int]:
+    """How many rest readings the current's zero is the mean of, when ingest read it off the data."""
+    zero = _ingest_segment(paths).get("current_zero") or {}
+    return {"current": int(zero["samples"])} if zero.get("method", "configured") != "configured" else {}
 
 
 def discover_run(paths: RunPaths, recording: str | None = None) -> tuple[Discovery, dict]:
     """Discovery on one processed (ingested and derived) run."""
     kin = load_kinematics(paths)
-    d = discover(kin, load_config(paths), paths.name, after_reset=after_board_reset(paths))
+    d = discover(kin, load_config(paths), paths.name, after_reset=after_board_reset(paths),
+                 zero_samples=zero_samples(paths))
     return d, discovery_json(d, recording if recording is not None else str(paths.root))

@@ -266,3 +266,24 @@ def test_a_start_re_estimated_for_another_onset_keeps_the_sensor_offset(tmp_path
     own = meas.x0(spec, earlier)
     assert own.current_offset == 0.15
     assert np.array_equal(replayed.current, meas.run(own, plant, earlier).current)
+
+
+def test_an_automatic_current_zero_off_by_its_own_error_is_not_named_an_offset(tmp_path):
+    """Randomised draw 247 (seed 15): a clean rig whose current zero ingest reads off 11 rest readings
+    (zero_v = "auto").  Their noise averages 47 mA off the part's true zero, 2 of that mean's standard
+    errors (the recording's noise floor over 11), which every later current then carries: an offset
+    really in the data, but one the zero's own error explains, so it is not named."""
+    draw, doc = _randomised(247, tmp_path)
+    assert not draw.effects and draw.setup.zero_v == "auto"
+    assert doc["verdict"] == "none" and doc["effects"] == []
+    offset = next(c for c in doc["candidates"] if c["name"] == "current_sensor_offset")
+    assert abs(offset["parameters"]["I0"]) > 0.03 and not offset["checks"]["interval_excludes_null"]
+
+
+def test_a_sensor_offset_is_not_named_beside_an_angle_the_model_cannot_explain(tmp_path):
+    """Randomised draw 78 (seed 15): a hot winding (outside the catalogue), 10 s of logging.  The
+    smaller current, over unequal times in each direction, has a mean that a sensor offset of 41 mA
+    removes, while the angle keeps 10,000 noise variances of structure: the offset was named."""
+    draw, doc = _randomised(78, tmp_path)
+    assert draw.outside and doc["verdict"] == "unexplained" and doc["effects"] == []
+    assert doc["pruned"]["effects"] == ["current_sensor_offset"]           # passed its round, then dropped

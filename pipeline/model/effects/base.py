@@ -42,6 +42,7 @@ class Param:
     absent: float                   # the value at which the effect is not there (an interval must exclude it)
     typical: float                  # a clearly visible value (examples, conformance tests, compile)
     scan: tuple[float, ...]         # discovery's coarse scan points, inside bounds, ``absent`` among them
+    zero_of: str = ""               # the logged signal whose zero the value also is, were that zero read off the data
 
     @property
     def signed(self) -> bool:

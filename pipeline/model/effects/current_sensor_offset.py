@@ -18,7 +18,7 @@ class CurrentSensorOffset(Effect):
     WHAT = "the measured current is I + I0 (ACS712 zero mis-set)"
     PARAMS = (
         Param("I0", "A", bounds=(-1.0, 1.0), absent=0.0, typical=0.06,
-              scan=tuple(np.linspace(-1.0, 1.0, 161))),)
+              scan=tuple(np.linspace(-1.0, 1.0, 161)), zero_of="current"),)
     SIGNATURE = "current_bias"
 
     def apply(self, spec: PlantSpec) -> PlantSpec:
