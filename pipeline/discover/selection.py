@@ -3,7 +3,7 @@
 A candidate is added only when all of these hold (issue 6, step 3):
 
 1. noise:     on held-out cycles it removes at least ``min_gain`` noise variances of mean
-              squared error from some signal (in the current: a many-sigma gain over the recording);
+              squared error from some signal, or a gain many sigmas over the recording;
 2. held out:  fitted on half the cycles, it removes at least ``MIN_HELDOUT_SHARE``
               of the structure (MSE above the noise floor) on the other half,
               without making any signal worse by more than ``MAX_WORSENING_FLOORS``;
