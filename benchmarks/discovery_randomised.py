@@ -3,7 +3,7 @@
 Each recording is drawn by ``pipeline.rig.randomised.randomised_setup`` (a lab's own sample
 period, supply, sensor, encoder, columns, terminal, capture start, resets, lost rows, noise,
 and 0-3 hidden catalogued effects or one outside the catalogue), written as CSV + TOML, and
-decided by the functions ``pdr discover RAW.csv`` calls (ingest, derive, its longest segment,
+decided by the functions ``pdr discover RAW.csv`` calls (ingest, derive, the segment it discovers on,
 ``discover_run``) in the worker; on every ``--timed-every``-th recording (default: all) the
 command a user runs, ``pdr discover RAW.csv --json``, also runs in a fresh process, timed
 whole (start-up, ingest, derive, discovery, report and .rrd), and its decision is checked to
@@ -58,11 +58,10 @@ def _command(csv: Path, processed: Path) -> tuple[dict | str, float, float]:
 
 
 def _in_process(csv: Path, processed: Path) -> dict | str:
-    """What the command decides, by the functions it calls (ingest, derive, its longest segment, discover_run),
+    """What the command decides, by the functions it calls (ingest, derive, ``segment_to_discover``, discover_run),
     without its start-up and without writing its report, plots and .rrd; or the error it would print."""
     from pipeline.derive.stage import derive_run
-    from pipeline.discover.cli import _samples
-    from pipeline.discover.stage import discover_run
+    from pipeline.discover.stage import discover_run, segment_to_discover
     from pipeline.errors import PdrError
     from pipeline.ingest.stage import ingest_recording
 
@@ -70,7 +69,7 @@ def _in_process(csv: Path, processed: Path) -> dict | str:
         runs = ingest_recording(csv, processed).runs
         for paths in runs:
             derive_run(paths)
-        _, doc = discover_run(max(runs, key=lambda p: _samples(p.kinematics)), recording=str(csv))
+        _, doc = discover_run(segment_to_discover(runs), recording=str(csv))
     except PdrError as err:
         return str(err)
     return doc

@@ -40,7 +40,7 @@ def discover(
     from pipeline.discover.adopt import adopt as adopt_effects
     from pipeline.discover.drawing import Drawer, idle_core
     from pipeline.discover.report import dumps, write_outputs
-    from pipeline.discover.stage import augmented_effects, discover_run
+    from pipeline.discover.stage import augmented_effects, discover_run, segment_to_discover
     from pipeline.errors import PdrError
     from pipeline.runs import DISCOVERY_DIR, resolve_runs
 
@@ -70,8 +70,8 @@ def discover(
             source_csv = _raw_source(runs[0].ingest_report)
         if not runs:
             raise PdrError("no usable segment in the recording", path=recording)
-        # one recording, one answer: the longest segment when the board reset mid-file
-        paths = max(runs, key=lambda p: _samples(p.kinematics))
+        # one recording, one answer: one segment when the board reset mid-file
+        paths = segment_to_discover(runs)
         d, doc = discover_run(paths, recording=str(recording))
         if len(runs) > 1:
             doc["segments"] = {"used": paths.name, "others": [p.name for p in runs if p != paths]}
@@ -123,12 +123,6 @@ def _discover_many(recordings: list[str], out: Path, json_out: bool, cluster: st
                    f"plot: {result.written['plot']}")
     if result.failed:
         raise typer.Exit(1)
-
-
-def _samples(path: Path) -> int:
-    import pyarrow.parquet as pq
-
-    return pq.ParquetFile(path).metadata.num_rows if path.is_file() else 0
 
 
 def _raw_source(report_path: Path) -> Path | None:

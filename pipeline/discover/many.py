@@ -43,12 +43,11 @@ class ManyResult:
 def discover_job(job: RecordingJob, rrd: bool) -> dict:
     """Runs where the job is sent: ingest, derive and discover one recording; never raises for its failure.
 
-    The longest segment is used when the board reset mid-file, as ``pdr discover`` does.
+    One segment is used when the board reset mid-file (``stage.segment_to_discover``), as ``pdr discover`` does.
     """
     from pipeline.derive.stage import derive_run
-    from pipeline.discover.cli import _samples
     from pipeline.discover.report import write_outputs
-    from pipeline.discover.stage import discover_run
+    from pipeline.discover.stage import discover_run, segment_to_discover
     from pipeline.runs import RunPaths
 
     out: dict = {"recording": job.source, "run": Path(job.source).stem, "doc": None, "files": {}, "error": None}
@@ -60,7 +59,7 @@ def discover_job(job: RecordingJob, rrd: bool) -> dict:
                 raise PdrError("no usable segment in the recording", path=job.source)
             for paths in runs:
                 derive_run(paths)
-            paths = max(runs, key=lambda p: _samples(p.kinematics))
+            paths = segment_to_discover(runs)
             d, doc = discover_run(paths, recording=job.source)
             if len(runs) > 1:
                 doc["segments"] = {"used": paths.name, "others": [p.name for p in runs if p != paths]}

@@ -205,6 +205,26 @@ def zero_samples(paths: RunPaths) -> dict[str, int]:
     return {"current": int(zero["samples"])} if zero.get("method", "configured") != "configured" else {}
 
 
+LATER_SEGMENT_FACTOR = 2.0
+
+
+def segment_to_discover(runs: list[RunPaths]) -> RunPaths:
+    """One recording, one answer: of a capture's segments (a board reset starts one), the first,
+    unless a later one has more than ``LATER_SEGMENT_FACTOR`` times its samples.  The first segment's
+    counter started where the springs hold the pinion; after a reset it restarts wherever the pinion
+    then is, so where the springs rest in its count is a nuisance that a constant load torque only
+    moves (such a segment tells Tl - k * offset, not Tl), and every model's start and offset are
+    fitted there (costlier, so discovery searches less widely: ``selection.wide_searches``)."""
+    import pyarrow.parquet as pq
+
+    def samples(paths: RunPaths) -> int:
+        return pq.ParquetFile(paths.kinematics).metadata.num_rows if paths.kinematics.is_file() else 0
+
+    sizes = [samples(p) for p in runs]
+    longest = max(range(len(runs)), key=sizes.__getitem__)
+    return runs[longest] if sizes[longest] > LATER_SEGMENT_FACTOR * sizes[0] else runs[0]
+
+
 def discover_run(paths: RunPaths, recording: str | None = None) -> tuple[Discovery, dict]:
     """Discovery on one processed (ingested and derived) run."""
     kin = load_kinematics(paths)

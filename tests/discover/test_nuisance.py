@@ -96,8 +96,7 @@ def test_a_hot_winding_is_not_named_as_a_slightly_stiffer_spring(tmp_path):
     import numpy as np
 
     from pipeline.derive.stage import derive_run
-    from pipeline.discover.cli import _samples
-    from pipeline.discover.stage import discover_run
+    from pipeline.discover.stage import discover_run, segment_to_discover
     from pipeline.ingest.stage import ingest_recording
     from pipeline.rig.randomised import randomised_setup
     from pipeline.rig.recording import make_recording, write_recording
@@ -108,19 +107,19 @@ def test_a_hot_winding_is_not_named_as_a_slightly_stiffer_spring(tmp_path):
     runs = ingest_recording(tmp_path / "raw" / "hot.csv", tmp_path / "processed").runs
     for paths in runs:
         derive_run(paths)
-    _, doc = discover_run(max(runs, key=lambda p: _samples(p.kinematics)))
+    _, doc = discover_run(segment_to_discover(runs))
     assert doc["verdict"] == "unexplained" and doc["effects"] == []
     spring = next(c for c in doc["candidates"] if c["name"] == "spring_stiffness")
     assert abs(spring["parameters"]["k_scale"] - 1.0) < 0.03 and not spring["checks"]["size"]
 
 
-def _randomised(index: int, tmp_path) -> tuple:
-    """Randomised draw ``index`` (seed 15) through CSV, ingest, derive and discovery of its longest run."""
+def _randomised(index: int, tmp_path, after_reset: bool = False) -> tuple:
+    """Randomised draw ``index`` (seed 15) through CSV, ingest, derive and discovery of the segment
+    ``pdr discover`` takes (``after_reset``: of the last, which follows a board reset)."""
     import numpy as np
 
     from pipeline.derive.stage import derive_run
-    from pipeline.discover.cli import _samples
-    from pipeline.discover.stage import discover_run
+    from pipeline.discover.stage import after_board_reset, discover_run, segment_to_discover
     from pipeline.ingest.stage import ingest_recording
     from pipeline.rig.randomised import randomised_setup
     from pipeline.rig.recording import make_recording, write_recording
@@ -130,7 +129,9 @@ def _randomised(index: int, tmp_path) -> tuple:
     runs = ingest_recording(tmp_path / "raw" / "r.csv", tmp_path / "processed").runs
     for paths in runs:
         derive_run(paths)
-    _, doc = discover_run(max(runs, key=lambda p: _samples(p.kinematics)))
+    if after_reset:
+        assert len(runs) > 1 and after_board_reset(runs[-1])
+    _, doc = discover_run(runs[-1] if after_reset else segment_to_discover(runs))
     return draw, doc
 
 
@@ -228,14 +229,13 @@ def test_a_segment_opening_at_rest_after_a_reset_without_dir(tmp_path):
 @pytest.mark.parametrize("index, expected", [(226, {}), (31, {"spring_stiffness": 1.2829}),
                                              (121, {"spring_stiffness": 1.2231})])
 def test_after_a_reset_the_command_is_decided_in_the_counters_frame_and_on_the_whole_run(tmp_path, index, expected):
-    """Randomised draws (seed 15) whose longest segment follows a board reset.  226 (clean, dir logged, 5
+    """Randomised draws (seed 15), the segment after their board reset.  226 (clean, dir logged, 5
     rows lost) and 31 (stiffer springs, no dir): a row lost at a reversal was decided by the model's
     guard, in the springs' frame, 0.09 and 0.03 rad off the counter's the sketch decided in, which
     drove a reversed pulse.  121 (stiffer springs, no dir): the motor's onset, chosen on the first
     phase where the start absorbs a sample's error, came out one sample early; on the whole run it is
     not.  Each left hundreds of noise variances in the angle."""
-    draw, doc = _randomised(index, tmp_path)
-    assert draw.setup.artefacts.reset_after_s is not None
+    draw, doc = _randomised(index, tmp_path, after_reset=True)
     assert doc["verdict"] == ("explained" if expected else "none"), (doc["effects"], doc["structure_after"])
     found = {e["name"]: next(iter(e["parameters"].values())) for e in doc["effects"]}
     assert found.keys() == expected.keys()
@@ -281,10 +281,11 @@ def test_an_automatic_current_zero_off_by_its_own_error_is_not_named_an_offset(t
 
 
 def test_a_sensor_offset_is_not_named_beside_an_angle_the_model_cannot_explain(tmp_path):
-    """Randomised draw 78 (seed 15): a hot winding (outside the catalogue), 10 s of logging.  The
-    smaller current, over unequal times in each direction, has a mean that a sensor offset of 41 mA
-    removes, while the angle keeps 10,000 noise variances of structure: the offset was named."""
-    draw, doc = _randomised(78, tmp_path)
+    """Randomised draw 78 (seed 15), the segment after its board reset: a hot winding (outside the
+    catalogue), 7 s.  The smaller current, over unequal times in each direction, has a mean that a
+    sensor offset of 41 mA removes, while the angle keeps 10,000 noise variances of structure: the
+    offset was named."""
+    draw, doc = _randomised(78, tmp_path, after_reset=True)
     assert draw.outside and doc["verdict"] == "unexplained" and doc["effects"] == []
     assert doc["pruned"]["effects"] == ["current_sensor_offset"]           # passed its round, then dropped
 
@@ -295,7 +296,7 @@ def test_after_a_reset_the_effects_and_the_counters_offset_are_refitted_in_turn(
     which its missing effects bent by 2 mrad; each held under the other, 134 noise variances of
     angle structure were left (``unexplained``).  Refitting the effects under the final offset, and
     the offset under them, leaves none."""
-    _named_right(*_randomised(7, tmp_path))
+    _named_right(*_randomised(7, tmp_path, after_reset=True))
 
 
 def test_a_small_backlash_beside_two_effects_that_reach_the_angles_floor_is_named(tmp_path):
@@ -303,3 +304,11 @@ def test_a_small_backlash_beside_two_effects_that_reach_the_angles_floor_is_name
     first two found the angle is at its floor; the backlash still removes 0.13 of a noise variance
     per sample, 316 in chi-square over the recording, but a whole variance was asked of the angle."""
     _named_right(*_randomised(250, tmp_path))
+
+
+def test_a_load_torque_is_found_on_the_segment_whose_counter_started_at_the_springs_rest(tmp_path):
+    """Randomised draw 264 (seed 15): a constant load torque, a board reset after 92 samples, 140 after
+    it.  After the reset the counter restarts wherever the pinion is, and a torque only moves where the
+    springs rest in that count (the segment tells Tl - k * offset, not Tl): discovered on the longer,
+    later segment it was not named.  The first segment is taken unless a later one is twice as long."""
+    _named_right(*_randomised(264, tmp_path))
