@@ -224,9 +224,10 @@ def _forward(meas: Measurement, names: tuple[str, ...], found: tuple[Effect, ...
             near_tie = near_tie or _near_tie(round_, best, assessed)
             effects = best.fit.effects
             last_round = ev.work - round_start
-        if not (restarted or not pairs or not effects or ev.work > WORK_BUDGET or not wide_searches(meas)
+        if not (restarted or not pairs or not rounds or ev.work > WORK_BUDGET or not wide_searches(meas)
                 or structure_after_start(ev, effects) <= STRUCTURE_FLOORS):
-            # structure left that no single candidate removes: two round-one candidates at once, then rounds again
+            # structure left that no single candidate removes (none adopted, or the rounds' last): two round-one
+            # candidates at once, then rounds again
             restarted = True
             pair = pair_restart(ev, meas, effects, rounds[0], WORK_BUDGET)
             if pair is not None:
