@@ -33,6 +33,7 @@ FLOOR_RELATIVE_VARIANCE = 3.0
 FLOOR_SIGMAS = 2.0
 MIN_HELDOUT_SHARE = 0.5      # share of held-out structure removed
 MAX_WORSENING_FLOORS = 2.0   # no signal may get worse than this on held-out data (a stacked partner may cost a little)
+MAX_WORSENING_SHARE = 0.1    # ... or than this share of its own structure (a start moved with a sensor offset)
 MAX_DELTA_BIC = -10.0        # "strong" evidence on Kass & Raftery's scale
 SIGNATURE_SHRINK = 0.5       # the motivating pattern must at least halve ...
 SIGNATURE_NOISE = 3.0        # ... or fall to this many noise variances
@@ -168,7 +169,7 @@ def assess(ev: Evaluator, meas: Measurement, effects: tuple[Effect, ...], name: 
         # floor's own error (a 0.05 rad backlash beside softer springs removed 0.5 of 2.1 noise variances
         # of angle structure, 650 in chi-square, where the true model leaves 1.6)
         "heldout": ((a.heldout_share >= MIN_HELDOUT_SHARE or before <= STRUCTURE_FLOORS)
-                    and a.worst_worsening_floors <= MAX_WORSENING_FLOORS and fit.heldout_nll_gain > 0),
+                    and not worsens(fit, ev.floor) and fit.heldout_nll_gain > 0),
         "bic": a.delta_bic <= MAX_DELTA_BIC,
         "interval_excludes_null": fit.excludes_null and beyond_zero_error(fit, meas, ev.floor),
         # a candidate that removes most of the held-out structure has shown its pattern; its
@@ -178,6 +179,18 @@ def assess(ev: Evaluator, meas: Measurement, effects: tuple[Effect, ...], name: 
         "size": nameable_size(fit.name, fit.value),
     }
     return a
+
+
+def worsens(fit: Fit, floor: dict[str, float]) -> bool:
+    """Whether some signal gets worse on held-out data by more than ``MAX_WORSENING_FLOORS`` noise
+    variances and ``MAX_WORSENING_SHARE`` of the structure it had: a sensor offset moves the start
+    the first seconds give, and with it an angle still far from its floor (after a reset, 146 noise
+    variances) by a few, where it removes 2.5 of the current's."""
+    for s, fl in floor.items():
+        before, after = fit.heldout_mse_before[s] / fl - 1.0, fit.heldout_mse_after[s] / fl - 1.0
+        if after - before > max(MAX_WORSENING_FLOORS, MAX_WORSENING_SHARE * before):
+            return True
+    return False
 
 
 def beyond_zero_error(fit: Fit, meas: Measurement, floor: dict[str, float]) -> bool:

@@ -6,7 +6,8 @@ A candidate is added only when all of these hold (issue 6, step 3):
               squared error from some signal, or a gain many sigmas over the recording;
 2. held out:  fitted on half the cycles, it removes at least ``MIN_HELDOUT_SHARE``
               of the structure (MSE above the noise floor) on the other half,
-              without making any signal worse by more than ``MAX_WORSENING_FLOORS``;
+              without making any signal worse by more than ``MAX_WORSENING_FLOORS`` (or a
+              tenth of its structure);
 3. BIC:       2*delta(nll) + k*ln(n) <= ``MAX_DELTA_BIC`` on all samples;
 4. interval:  its ~95 % interval excludes the value at which it is absent;
 5. signature: the residual pattern that points at it shrinks by half (or to the noise,
