@@ -35,14 +35,7 @@ def discover(
     Then: pdr validate raw/paper_run.csv --model processed/discovery/paper_run/effects.toml,
     or adopt it: pdr discover raw/paper_run.csv --adopt
     """
-    import tempfile
-
-    from pipeline.discover.adopt import adopt as adopt_effects
-    from pipeline.discover.drawing import Drawer, idle_core
-    from pipeline.discover.report import dumps, write_outputs
-    from pipeline.discover.stage import augmented_effects, discover_run
     from pipeline.errors import PdrError
-    from pipeline.runs import DISCOVERY_DIR, resolve_runs
 
     if len(recordings) > 1:
         if adopt:
@@ -52,9 +45,17 @@ def discover(
         return
     recording = recordings[0]
     item = Path(recording)
-    if item.suffix.lower() == ".csv" and not item.is_file():
+    if item.suffix.lower() == ".csv" and not item.is_file():      # said before the ~0.5 s of imports below
         raise PdrError("no such raw recording: expected a CSV file, a processed run folder or a run name",
                        path=recording)
+    import tempfile
+
+    from pipeline.discover.adopt import adopt as adopt_effects
+    from pipeline.discover.drawing import Drawer, idle_core
+    from pipeline.discover.report import dumps, write_outputs
+    from pipeline.discover.stage import augmented_effects, discover_run
+    from pipeline.runs import DISCOVERY_DIR, resolve_runs
+
     # the figures' and the .rrd's imports and drawing overlap the decision when a core is free
     with Drawer(background=idle_core()) as drawer, tempfile.TemporaryDirectory(prefix="pdr-discover-") as tmp:
         if item.suffix.lower() == ".csv" and item.is_file():

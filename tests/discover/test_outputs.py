@@ -164,6 +164,17 @@ def test_cli_refuses_what_it_cannot_read(tmp_path):
     assert res.stderr.startswith("pdr: error:") and len(res.stderr.strip().splitlines()) == 1
 
 
+def test_a_missing_raw_file_is_refused_before_the_discovery_is_imported(tmp_path):
+    """Said at once: nothing of the discovery, its figures or its recording is imported for it."""
+    probe = ("import sys\nfrom pipeline.cli import main\nsys.argv = ['pdr', 'discover', sys.argv[1]]\n"
+             "try:\n    main()\nexcept SystemExit as e:\n    code = e.code\n"
+             "heavy = ['pipeline.discover.stage', 'matplotlib', 'rerun', 'scipy', 'pandas']\n"
+             "print(code, [m for m in heavy if m in sys.modules])\n")
+    res = subprocess.run([sys.executable, "-c", probe, str(tmp_path / "nope.csv")], capture_output=True, text=True)
+    assert res.stdout.split() == ["2", "[]"], res.stdout + res.stderr
+    assert "nope.csv: no such raw recording" in res.stderr
+
+
 def test_snippet_layers_over_the_rig_like_validation(tmp_path):
     snippet = tmp_path / "effects.toml"
     snippet.write_text("[effects]\nviscous_friction = { b = 0.0002 }\n")
