@@ -92,3 +92,19 @@ def test_drawer_is_used_only_with_an_idle_core(monkeypatch):
     assert drawing.idle_core()
     monkeypatch.setenv("PDR_DISCOVER_DRAW", "here")
     assert not drawing.idle_core()
+
+
+def test_no_figure_parses_mathtext(backlash_discovery, monkeypatch):
+    """Tick labels are plain numbers ("0.1", "1", "10"): mathtext parsing was half the localisation figure."""
+    from matplotlib import mathtext
+
+    from pipeline.discover.report import localisation_png, residuals_png, signals_png
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("mathtext parsed")
+
+    monkeypatch.setattr(mathtext.MathTextParser, "parse", refuse)
+    d, _doc = backlash_discovery
+    for draw in (signals_png, residuals_png, candidates_png, localisation_png):
+        with Image.open(io.BytesIO(draw(d))) as im:
+            assert im.size[0] > 500
