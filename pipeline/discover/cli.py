@@ -51,13 +51,13 @@ def discover(
     import tempfile
 
     from pipeline.discover.adopt import adopt as adopt_effects
-    from pipeline.discover.drawing import Drawer, idle_core
+    from pipeline.discover.drawing import Drawer, second_process
     from pipeline.discover.report import dumps, write_outputs
     from pipeline.discover.stage import augmented_effects, discover_run
     from pipeline.runs import DISCOVERY_DIR, resolve_runs
 
-    # the figures' and the .rrd's imports and drawing overlap the decision when a core is free
-    with Drawer(background=idle_core()) as drawer, tempfile.TemporaryDirectory(prefix="pdr-discover-") as tmp:
+    # the figures' and the .rrd's imports and drawing overlap the decision (drawing.second_process)
+    with Drawer(background=second_process()) as drawer, tempfile.TemporaryDirectory(prefix="pdr-discover-") as tmp:
         if item.suffix.lower() == ".csv" and item.is_file():
             from pipeline.derive.stage import derive_run
             from pipeline.ingest.stage import ingest_recording

@@ -291,12 +291,16 @@ def write_outputs(out_dir: Path, d: Discovery, doc: dict, *, rrd: bool = True, d
     return paths
 
 
-def write_figures(paths: dict[str, Path], d: Discovery, report_md: str, *, rrd: bool) -> None:
-    """The four PNGs and (``rrd``) the Rerun recording, at ``paths`` (``FILES``' keys)."""
-    write_bytes(paths["signals_png"], signals_png(d))
-    write_bytes(paths["residuals_png"], residuals_png(d))
-    write_bytes(paths["candidates_png"], candidates_png(d))
-    write_bytes(paths["localisation_png"], localisation_png(d))
+FIGURES = {"signals_png": signals_png, "residuals_png": residuals_png, "candidates_png": candidates_png,
+           "localisation_png": localisation_png}
+
+
+def write_figures(paths: dict[str, Path], d: Discovery, report_md: str, *, rrd: bool,
+                  figures: tuple[str, ...] = tuple(FIGURES)) -> None:
+    """The PNGs named in ``figures`` (``FIGURES``' keys: all four unless told) and (``rrd``) the Rerun
+    recording, at ``paths`` (``FILES``' keys)."""
+    for key in figures:
+        write_bytes(paths[key], FIGURES[key](d))
     if rrd:
         write_rrd(paths["rrd"], d, report_md)
 
