@@ -165,13 +165,14 @@ def test_cli_refuses_what_it_cannot_read(tmp_path):
 
 
 def test_a_missing_raw_file_is_refused_before_the_discovery_is_imported(tmp_path):
-    """Said at once: nothing of the discovery, its figures or its recording is imported for it."""
-    probe = ("import sys\nfrom pipeline.cli import main\nsys.argv = ['pdr', 'discover', sys.argv[1]]\n"
+    """Said at once: nothing of the discovery, its figures or its recording is imported for it; and the
+    objects alive at the end are frozen, out of the teardown's garbage collections."""
+    probe = ("import gc, sys\nfrom pipeline.cli import main\nsys.argv = ['pdr', 'discover', sys.argv[1]]\n"
              "try:\n    main()\nexcept SystemExit as e:\n    code = e.code\n"
              "heavy = ['pipeline.discover.stage', 'matplotlib', 'rerun', 'scipy', 'pandas']\n"
-             "print(code, [m for m in heavy if m in sys.modules])\n")
+             "print(code, gc.get_freeze_count() > 1000, [m for m in heavy if m in sys.modules])\n")
     res = subprocess.run([sys.executable, "-c", probe, str(tmp_path / "nope.csv")], capture_output=True, text=True)
-    assert res.stdout.split() == ["2", "[]"], res.stdout + res.stderr
+    assert res.stdout.split() == ["2", "True", "[]"], res.stdout + res.stderr
     assert "nope.csv: no such raw recording" in res.stderr
 
 
