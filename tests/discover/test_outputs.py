@@ -196,3 +196,15 @@ def test_an_overstated_declared_effect_is_pointed_out_not_named(tmp_path):
     over = doc["declared_too_large"]
     assert [o["name"] for o in over] == ["loop_delay"] and over[0]["fitted"] < 0.003
     assert any("overstate loop_delay" in line for line in doc["unexplained"])
+
+
+def test_the_command_collects_garbage_less_often_and_restores_the_collector():
+    import gc
+
+    from pipeline.discover.cli import fewer_collections
+
+    before = gc.get_threshold()
+    with pytest.raises(RuntimeError), fewer_collections():
+        assert gc.get_threshold()[0] >= 50 * before[0]
+        raise RuntimeError("the command failed")
+    assert gc.get_threshold() == before
