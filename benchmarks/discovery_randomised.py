@@ -4,12 +4,13 @@ Each recording is drawn by ``pipeline.rig.randomised.randomised_setup`` (a lab's
 period, supply, sensor, encoder, columns, terminal, capture start, resets, lost rows, noise,
 and 0-3 hidden catalogued effects or one outside the catalogue), written as CSV + TOML, and
 decided by the functions ``pdr discover RAW.csv`` calls (ingest, derive, its longest segment,
-``discover_run``) in the worker, two recordings at a time (a process pool of two, one per core).
-Then, with the pool closed and nothing else of ours running, on every ``--timed-every``-th
-recording (default: all) the command a user runs, ``pdr discover RAW.csv --json``, runs in a
-fresh process, one at a time as a user waits for it, timed whole (start-up, ingest, derive,
-discovery, report and .rrd) with the 1-minute load average beside it (the machine may be
-shared), and its decision is checked to be the in-process one.
+``discover_run``) in the worker; on every ``--timed-every``-th recording (default: all) the
+command a user runs, ``pdr discover RAW.csv --json``, also runs in a fresh process, timed
+whole (start-up, ingest, derive, discovery, report and .rrd), and its decision is checked to
+be the in-process one.  The recordings are decided two at a time (a process pool of two, one
+per core); then, with the pool closed and nothing else of ours running, the commands run one
+at a time as a user waits for one, each with the 1-minute load average beside it (the machine
+may be shared).
 
 A recording is right when the named effects are exactly the hidden ones and the verdict is
 ``explained``; ``none`` with no name on a clean one; ``unexplained`` with no name outside the

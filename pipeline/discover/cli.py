@@ -12,6 +12,35 @@ import typer
 DEFAULT_PROCESSED = Path("processed")
 
 
+@contextmanager
+def fewer_collections() -> Iterator[None]:
+    """The garbage collector's first generation collected every 50,000 new objects instead of 700, until the
+    block (or the decorated command) ends.  The command's imports (numpy, pandas, scipy, numba, matplotlib)
+    leave ~250,000 long-lived objects the collector tracks; by the default thresholds they set off five full
+    collections (~0.4 s on paper_clean, ~15 % of the command); with these, none, and ~0.1 s of young ones,
+    at the same peak memory.  At the end what is still young joins the oldest generation (a freeze and an
+    unfreeze, two list splices), or the default thresholds would walk all of it at the next allocation."""
+    before = gc.get_threshold()
+    gc.set_threshold(50_000, 20, 100)
+    try:
+        yield
+    finally:
+        if not gc.get_freeze_count():         # nobody else's frozen objects to thaw
+            gc.freeze()
+            gc.unfreeze()
+        gc.set_threshold(*before)
+
+
+def refuse_a_missing_csv(recordings: list[str]) -> None:
+    """One raw CSV that is not there is said at once, before the ~0.5 s of imports discovering it needs."""
+    from pipeline.errors import PdrError
+
+    if len(recordings) == 1 and Path(recordings[0]).suffix.lower() == ".csv" and not Path(recordings[0]).is_file():
+        raise PdrError("no such raw recording: expected a CSV file, a processed run folder or a run name",
+                       path=recordings[0])
+
+
+@fewer_collections()
 def discover(
     recordings: list[str] = typer.Argument(..., metavar="RECORDING",
                                            help="A raw CSV path (ingested and derived on the fly), "
@@ -37,38 +66,7 @@ def discover(
     Then: pdr validate raw/paper_run.csv --model processed/discovery/paper_run/effects.toml,
     or adopt it: pdr discover raw/paper_run.csv --adopt
     """
-    from pipeline.errors import PdrError
-
-    if len(recordings) > 1:
-        if adopt:
-            raise PdrError("--adopt takes one recording (adopt what one run found)", key="--adopt")
-        _discover_many(recordings, out if out is not None else processed / "discovery", json_out, cluster, jobs,
-                       rrd=not no_rrd)
-        return
-    recording = recordings[0]
-    item = Path(recording)
-    if item.suffix.lower() == ".csv" and not item.is_file():      # said before the ~0.5 s of imports below
-        raise PdrError("no such raw recording: expected a CSV file, a processed run folder or a run name",
-                       path=recording)
-    with fewer_collections():
-        _discover_one(recording, json_out=json_out, adopt=adopt, out=out, processed=processed, rrd=not no_rrd)
-
-
-@contextmanager
-def fewer_collections() -> Iterator[None]:
-    """The garbage collector's first generation collected every 50,000 new objects instead of 700, until the
-    block ends.  The command's imports (numpy, pandas, scipy, numba, matplotlib) leave ~250,000 long-lived
-    objects the collector tracks; by the default thresholds they set off five full collections (~0.4 s on
-    paper_clean, ~15 % of the command); with these, none, and ~0.1 s of young ones, at the same peak memory."""
-    before = gc.get_threshold()
-    gc.set_threshold(50_000, 20, 100)
-    try:
-        yield
-    finally:
-        gc.set_threshold(*before)
-
-
-def _discover_one(recording: str, *, json_out: bool, adopt: bool, out: Path | None, processed: Path, rrd: bool) -> None:
+    refuse_a_missing_csv(recordings)
     import tempfile
 
     from pipeline.discover.adopt import adopt as adopt_effects
@@ -78,6 +76,13 @@ def _discover_one(recording: str, *, json_out: bool, adopt: bool, out: Path | No
     from pipeline.errors import PdrError
     from pipeline.runs import DISCOVERY_DIR, resolve_runs
 
+    if len(recordings) > 1:
+        if adopt:
+            raise PdrError("--adopt takes one recording (adopt what one run found)", key="--adopt")
+        _discover_many(recordings, out if out is not None else processed / "discovery", json_out, cluster, jobs,
+                       rrd=not no_rrd)
+        return
+    recording = recordings[0]
     item = Path(recording)
     # the figures' and the .rrd's imports and drawing overlap the decision (drawing.second_process)
     with Drawer(background=second_process()) as drawer, tempfile.TemporaryDirectory(prefix="pdr-discover-") as tmp:
@@ -101,7 +106,7 @@ def _discover_one(recording: str, *, json_out: bool, adopt: bool, out: Path | No
             doc["segments"] = {"used": paths.name, "others": [p.name for p in runs if p != paths]}
         root = processed if item.suffix.lower() == ".csv" or not item.is_dir() else item.parent
         out_dir = out if out is not None else Path(root) / DISCOVERY_DIR / paths.name
-        written = write_outputs(out_dir, d, doc, rrd=rrd, drawer=drawer)
+        written = write_outputs(out_dir, d, doc, rrd=not no_rrd, drawer=drawer)
     if adopt:
         if not d.effects:
             doc["adopted"] = None

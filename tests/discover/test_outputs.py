@@ -204,7 +204,12 @@ def test_the_command_collects_garbage_less_often_and_restores_the_collector():
     from pipeline.discover.cli import fewer_collections
 
     before = gc.get_threshold()
+    young = []
     with pytest.raises(RuntimeError), fewer_collections():
         assert gc.get_threshold()[0] >= 50 * before[0]
+        young += [[k] for k in range(5000)]
+        assert gc.get_count()[0] >= 5000                # not collected yet
         raise RuntimeError("the command failed")
     assert gc.get_threshold() == before
+    assert gc.get_freeze_count() == 0
+    assert any(o is young for o in gc.get_objects(generation=2))    # what was young joined the oldest generation
