@@ -7,7 +7,10 @@ decided by the functions ``pdr discover RAW.csv`` calls (ingest, derive, the seg
 ``discover_run``) in the worker; on every ``--timed-every``-th recording (default: all) the
 command a user runs, ``pdr discover RAW.csv --json``, also runs in a fresh process, timed
 whole (start-up, ingest, derive, discovery, report and .rrd), and its decision is checked to
-be the in-process one.  Two recordings run at a time (a process pool of two, one per core).
+be the in-process one.  The recordings are decided two at a time (a process pool of two, one
+per core); then, with the pool closed and nothing else of ours running, the commands run one
+at a time as a user waits for one, each with the 1-minute load average beside it (the machine
+may be shared).
 
 A recording is right when the named effects are exactly the hidden ones and the verdict is
 ``explained``; ``none`` with no name on a clean one; ``unexplained`` with no name outside the
@@ -45,7 +48,8 @@ def expected_verdict(label: str) -> str:
 
 
 def _command(csv: Path, processed: Path) -> tuple[dict | str, float, float]:
-    """``pdr discover RAW.csv --json`` in a fresh process: its JSON (or its last error line), wall and CPU seconds."""
+    """``pdr discover RAW.csv --json`` in a fresh process: its JSON (or its last error line), wall and CPU seconds
+    (CPU: user + system of the command and every process it waited for, its drawing processes included)."""
     t0, before = time.perf_counter(), resource.getrusage(resource.RUSAGE_CHILDREN)
     proc = subprocess.run([str(PDR), "discover", str(csv), "--json", "--processed", str(processed)],
                           capture_output=True, text=True, cwd=csv.parent)
@@ -79,31 +83,31 @@ def _found(doc: dict) -> dict[str, dict[str, float]]:
     return {e["name"]: e["parameters"] for e in doc["effects"]}
 
 
-def run_one(index: int, seed: int, work: Path, timed: bool) -> dict:
-    """Draw recording ``index``, write it, decide it in-process and, when ``timed``, by the command too."""
+def _write_draw(index: int, seed: int, work: Path):
+    """Draw recording ``index`` and write it as ``<work>/raw/r<index>.csv`` + TOML: the draw, the recording, the CSV."""
     from pipeline.rig.randomised import randomised_setup
     from pipeline.rig.recording import make_recording, write_recording
 
     draw = randomised_setup(np.random.default_rng([seed, index]))
     name = f"r{index:04d}"
-    t0 = time.perf_counter()
     rec = make_recording(draw.setup)
     write_recording(rec, work / "raw", name)
-    csv = work / "raw" / f"{name}.csv"
+    return draw, rec, work / "raw" / f"{name}.csv"
+
+
+def run_one(index: int, seed: int, work: Path) -> dict:
+    """Draw recording ``index``, write it and decide it in-process (``time_command`` times the command later)."""
+    name = f"r{index:04d}"
+    t0 = time.perf_counter()
+    draw, rec, csv = _write_draw(index, seed, work)
     row = {"index": index, "label": draw.label, "n_effects": len(draw.effects), "outside": draw.outside,
            "expected": expected_verdict(draw.label), "make_s": time.perf_counter() - t0,
            "samples": len(rec.truth), "conventions": draw.conventions,
            "truth": {e.name: e.parameters for e in draw.effects}, "discover_wall_s": None, "discover_cpu_s": None}
     t0, c0 = time.perf_counter(), time.process_time()
     doc = _in_process(csv, work / "in-process" / name)
-    row |= {"in_process_wall_s": time.perf_counter() - t0, "in_process_cpu_s": time.process_time() - c0}
-    if timed:
-        cmd, wall, cpu = _command(csv, work / "processed")
-        row |= {"discover_wall_s": wall, "discover_cpu_s": cpu, "decided_by": "in-process and command",
-                "command_agrees": (isinstance(cmd, dict) and isinstance(doc, dict)
-                                   and (cmd["verdict"], _found(cmd)) == (doc["verdict"], _found(doc))) or cmd == doc}
-    else:
-        row["decided_by"] = "in-process"
+    row |= {"in_process_wall_s": time.perf_counter() - t0, "in_process_cpu_s": time.process_time() - c0,
+            "decided_by": "in-process"}
     if isinstance(doc, str):
         return row | {"verdict": "error", "found": {}, "error": doc, "right": False, "param_err": {}}
     found = _found(doc)
@@ -114,6 +118,31 @@ def run_one(index: int, seed: int, work: Path, timed: bool) -> dict:
             errors[name_] = err if np.isfinite(err) else None      # a parameter found as NaN: kept, not lost in JSON
     right = set(found) == set(row["truth"]) and doc["verdict"] == row["expected"]
     return row | {"verdict": doc["verdict"], "found": found, "right": right, "param_err": errors}
+
+
+def _running() -> int | None:
+    """Tasks running on the machine now, this one included (/proc/loadavg's 4th field; None without it):
+    the 1-minute load average still remembers the in-process decisions for a minute after they end."""
+    try:
+        return int(Path("/proc/loadavg").read_text().split()[3].split("/")[0])
+    except (OSError, IndexError, ValueError):
+        return None
+
+
+def time_command(row: dict, seed: int, work: Path) -> dict:
+    """``row`` (decided in-process) with the command's wall and CPU seconds, the 1-minute load average just
+    before it, and whether the command decided as the in-process functions did.  Run one at a time."""
+    csv = work / "raw" / f"r{row['index']:04d}.csv"
+    if not csv.is_file():                       # a row finished by a stopped run: draw its recording again
+        _write_draw(row["index"], seed, work)
+    load, running = os.getloadavg()[0], _running()
+    cmd, wall, cpu = _command(csv, work / "processed")
+    doc = row.get("error") if row["verdict"] == "error" else {"verdict": row["verdict"], "effects": [
+        {"name": k, "parameters": v} for k, v in row["found"].items()]}
+    agrees = (isinstance(cmd, dict) and isinstance(doc, dict)
+              and (cmd["verdict"], _found(cmd)) == (doc["verdict"], _found(doc))) or cmd == doc
+    return row | {"discover_wall_s": wall, "discover_cpu_s": cpu, "discover_load_1min": load, "running_before": running,
+                  "decided_by": "in-process and command", "command_agrees": agrees}
 
 
 def _kind(label: str) -> str:
@@ -144,6 +173,8 @@ def summarise(rows: list[dict]) -> dict:
     no_effect = df[df["label"].eq("clean") | df["label"].str.startswith("outside:")]
     timed = df[df["discover_wall_s"].notna()]
     wall, cpu = timed["discover_wall_s"].astype(float), timed["discover_cpu_s"].astype(float)
+    load, running = (timed[k].dropna().astype(float) if k in timed else pd.Series(dtype=float)
+                     for k in ("discover_load_1min", "running_before"))
     agree = timed["command_agrees"].dropna() if "command_agrees" in timed else pd.Series(dtype=bool)
     return {
         "recordings": len(df), "right": int(df["right"].sum()), "right_fraction": float(df["right"].mean()),
@@ -163,6 +194,12 @@ def summarise(rows: list[dict]) -> dict:
         if "in_process_cpu_s" in df else None,
         "discover_wall_s": {"median": float(wall.median()), "max": float(wall.max()), "mean": float(wall.mean()),
                             "over_10s": int((wall > 10).sum()), "over_2s": int((wall > 2).sum())} if len(timed) else None,
+        "discover_timed_one_at_a_time": bool(len(timed)) and "discover_load_1min" in timed
+        and bool(timed["discover_load_1min"].notna().all()),
+        "discover_load_1min": {"median": float(load.median()), "min": float(load.min()), "max": float(load.max())}
+        if len(load) else None,
+        "running_before_command": {"median": float(running.median()), "max": float(running.max())}
+        if len(running) else None,
         "discover_cpu_s": {"median": float(cpu.median()), "max": float(cpu.max()), "mean": float(cpu.mean())}
         if len(timed) else None,
         "load_average_at_end": os.getloadavg(),
@@ -190,9 +227,14 @@ def print_summary(s: dict) -> None:
           f"{s['in_process_cpu_s']}")
     if w is None:
         return
-    print(f"pdr discover RAW.csv, wall per recording (two at a time on this machine, load average at the end "
-          f"{s['load_average_at_end'][0]:.1f}): median {w['median']:.2f} s, max {w['max']:.2f} s, mean {w['mean']:.2f} s; "
-          f"over 2 s: {w['over_2s']}, over 10 s: {w['over_10s']}")
+    load = s.get("discover_load_1min")
+    how = (f"one at a time, 1-minute load average before each {load['min']:.1f}-{load['max']:.1f}, median {load['median']:.1f}"
+           + (f"; tasks running before each: median {s['running_before_command']['median']:.0f}, "
+              f"max {s['running_before_command']['max']:.0f}" if s.get("running_before_command") else "")
+           if s.get("discover_timed_one_at_a_time") else
+           f"beside in-process decisions, load average at the end {s['load_average_at_end'][0]:.1f}")
+    print(f"pdr discover RAW.csv, wall per recording ({how}): median {w['median']:.2f} s, max {w['max']:.2f} s, "
+          f"mean {w['mean']:.2f} s; over 2 s: {w['over_2s']}, over 10 s: {w['over_10s']}")
     c = s["discover_cpu_s"]
     print(f"  CPU of that command (user + system, its own threads summed; blind to the load): median {c['median']:.2f} s, "
           f"max {c['max']:.2f} s, mean {c['mean']:.2f} s")
@@ -222,37 +264,51 @@ def summarise_partial(seed: int, out: Path, wanted: int) -> dict:
     return summary
 
 
+def _print_row(r: dict) -> None:
+    print(f"{'ok ' if r['right'] else 'BAD'} {r['index']:4d} {r['label']:60s} -> {r['verdict']:11s} "
+          f"{'+'.join(r['found']) or '-':50s} err {max((e if e is not None else float('inf') for e in r['param_err'].values()), default=float('nan')):.3f} "
+          f"{r['samples']:6d} samples"
+          + (f" pdr discover {r['discover_wall_s']:.2f} s wall {r['discover_cpu_s']:.2f} s CPU"
+             + (f" (load {r['discover_load_1min']:.1f})" if r.get("discover_load_1min") is not None else "")
+             if r["discover_wall_s"] is not None else "")
+          + (f"  [{r['error']}]" if r.get("error") else ""), flush=True)
+
+
 def main(recordings: int, seed: int, out: Path, workers: int = 2, timed_every: int = 1,
          only: list[int] | None = None) -> dict:
     """Run (or finish: rows already in ``<out>.partial.jsonl`` for this seed are kept) and summarise;
-    the command itself runs on every ``timed_every``-th recording (1: all); ``only``: just these indices."""
+    the command itself runs on every ``timed_every``-th recording (1: all), after every in-process
+    decision, one at a time; ``only``: just these indices."""
     out.parent.mkdir(parents=True, exist_ok=True)
     partial = out.with_name(out.name + ".partial.jsonl")
     done = _done_rows(partial, seed)
-    rows = []
-    with tempfile.TemporaryDirectory(prefix="pdr-bench-randomised-") as tmp, \
-            ProcessPoolExecutor(max_workers=workers) as pool, partial.open("a") as log:
+    rows = {}
+    indices = only if only is not None else list(range(recordings))
+    with tempfile.TemporaryDirectory(prefix="pdr-bench-randomised-") as tmp, partial.open("a") as log:
         work = Path(tmp)
-        indices = only if only is not None else list(range(recordings))
-        futures = {i: pool.submit(run_one, i, seed, work, i % timed_every == 0)
-                   for i in indices if i not in done}
-        for i in indices:
-            r = done[i] if i in done else futures[i].result() | {"seed": seed}
-            if i not in done:
-                log.write(json.dumps(r, sort_keys=True) + "\n")
-                log.flush()
-            rows.append(r)
-            print(f"{'ok ' if r['right'] else 'BAD'} {r['index']:4d} {r['label']:60s} -> {r['verdict']:11s} "
-                  f"{'+'.join(r['found']) or '-':50s} err {max((e if e is not None else float('inf') for e in r['param_err'].values()), default=float('nan')):.3f} "
-                  f"{r['samples']:6d} samples"
-                  + (f" pdr discover {r['discover_wall_s']:.2f} s wall {r['discover_cpu_s']:.2f} s CPU"
-                     if r["discover_wall_s"] is not None else "")
-                  + (f"  [{r['error']}]" if r.get("error") else ""), flush=True)
-    summary = summarise(rows)
+        with ProcessPoolExecutor(max_workers=workers) as pool:
+            futures = {i: pool.submit(run_one, i, seed, work) for i in indices if i not in done}
+            for i in indices:
+                r = done[i] if i in done else futures[i].result() | {"seed": seed}
+                if i not in done:
+                    log.write(json.dumps(r, sort_keys=True) + "\n")
+                    log.flush()
+                rows[i] = r
+                _print_row(r)
+        timed = [i for i in indices if i % timed_every == 0 and rows[i].get("discover_wall_s") is None]
+        if timed:
+            print(f"\nthe command, one at a time, on {len(timed)} recordings:", flush=True)
+        for i in timed:
+            rows[i] = time_command(rows[i], seed, work)
+            log.write(json.dumps(rows[i], sort_keys=True) + "\n")     # replaces the untimed row on a resume
+            log.flush()
+            _print_row(rows[i])
+    summary = summarise([rows[i] for i in indices])
     print_summary(summary)
     from pipeline.io.atomic import write_json
 
-    write_json(out, {"seed": seed, "complete": True, "wanted": recordings, "summary": summary, "recordings": rows})
+    write_json(out, {"seed": seed, "complete": True, "wanted": recordings, "summary": summary,
+                     "recordings": [rows[i] for i in indices]})
     partial.unlink()
     print(f"\nwrote {out}")
     return summary

@@ -6,6 +6,7 @@ happen inside the command functions so ``pdr --help`` stays instant.
 
 from __future__ import annotations
 
+import gc
 import os
 import sys
 
@@ -45,6 +46,16 @@ def _register() -> None:
 _register()
 
 
+def _run() -> None:
+    """The command, then the garbage collector stopped for the interpreter's teardown: its collections
+    walk every object of every module imported (~0.4 s after ``pdr discover``, ~15 % of the command)
+    only to free what the process's exit frees anyway.  Atexit handlers and flushes still run."""
+    try:
+        app()
+    finally:
+        gc.freeze()
+
+
 def main() -> None:
     """Console entry point: every failure is one line on stderr, never a traceback.
 
@@ -57,7 +68,7 @@ def main() -> None:
         if hasattr(stream, "reconfigure"):
             stream.reconfigure(errors="backslashreplace")
     try:
-        app()
+        _run()
     except PdrError as err:
         print(f"pdr: error: {err}", file=sys.stderr)
         sys.exit(2)

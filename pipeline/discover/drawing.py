@@ -1,12 +1,18 @@
-"""The discovery's figures and Rerun recording, drawn beside the decision when a core is free.
+"""The discovery's figures and Rerun recording, drawn beside the decision.
 
-Drawing needs matplotlib and rerun (~0.5 s of imports) and then ~0.5 s for the four PNGs;
-none of it is needed to decide.  A second process, started before the recording is even
-ingested, does those imports while this one ingests, derives and fits, then draws what it
-is handed; the user waits for the longer of the two, not their sum.  It repeats some imports
-(numpy, pandas, the discovery modules its input is made of), ~0.5 s of CPU, which a busy
-machine would pay in waiting, so it is used only when the load average leaves a core idle.
-Either way the files are the same bytes (``report.write_figures`` draws them).
+Drawing needs matplotlib and rerun (~0.45 s of imports) and then ~0.45 s for the four PNGs
+and the .rrd; none of it is needed to decide.  A second process, started before the
+recording is even ingested, does those imports while this one ingests, derives and fits,
+then draws what it is handed; the user waits for the longer of the two, not their sum.
+
+Where processes can be forked (Linux), the second process is a fork taken after the
+discovery's own modules are imported: it repeats no import and costs no CPU that drawing
+here would not, so it is used whenever there are two cores.  Handed the discovery, it forks
+once more and the two draw half the figures each (two PNGs there; two PNGs and the .rrd
+here, the process that imported rerun).  Elsewhere the second process is spawned and repeats
+numpy, pandas and the discovery modules (~0.5 s of CPU), which a busy machine would pay in
+waiting, so it is used only when the load average leaves a core idle.  Either way the files
+are the same bytes (``report.write_figures`` draws them).
 """
 
 from __future__ import annotations
@@ -14,18 +20,30 @@ from __future__ import annotations
 import multiprocessing
 import os
 import signal
+import sys
 from dataclasses import replace
 from pathlib import Path
 
+# what the forked second process hands to its own fork (the rest, and the .rrd, it draws itself)
+FORKED_HALF = ("localisation_png", "candidates_png")
 
-def idle_core() -> bool:
-    """Whether a core is free for a second process: the 1-minute load average at least one
-    below the cores (where there is no load average, whether there are two cores).
-    ``PDR_DISCOVER_DRAW=process`` or ``=here`` decides instead (benchmarks compare the two)."""
+
+def can_fork() -> bool:
+    """Whether the second process can be a fork: Linux (macOS' system libraries are not fork-safe)."""
+    return sys.platform.startswith("linux") and "fork" in multiprocessing.get_all_start_methods()
+
+
+def second_process() -> bool:
+    """Whether to draw in a second process.  A fork (``can_fork``) whenever there are two cores;
+    a spawned one only when the 1-minute load average is at least one below the cores (where there
+    is no load average, whether there are two cores).  ``PDR_DISCOVER_DRAW=process`` or ``=here``
+    decides instead (benchmarks compare the two)."""
     forced = os.environ.get("PDR_DISCOVER_DRAW", "")
     if forced in ("process", "here"):
         return forced == "process"
     cores = os.cpu_count() or 1
+    if can_fork():
+        return cores >= 2
     try:
         load = os.getloadavg()[0]
     except (AttributeError, OSError):
@@ -35,6 +53,7 @@ def idle_core() -> bool:
 
 def _warm() -> None:
     """What drawing imports, done while the first process decides."""
+    import matplotlib.backends.backend_agg  # noqa: F401
     import matplotlib.figure  # noqa: F401
     import rerun  # noqa: F401
 
@@ -47,12 +66,35 @@ def _draw(paths: dict[str, Path], d, report_md: str, rrd: bool) -> None:
     write_figures(paths, d, report_md, rrd=rrd)
 
 
-def _serve(conn) -> None:
+def _draw_in_halves(paths: dict[str, Path], d, report_md: str, rrd: bool) -> bool:
+    """Draw ``FORKED_HALF`` in a fork of this process and the rest here; whether both halves were drawn.
+    The fork draws no .rrd: rerun's threads, started by its import here, are not in a fork."""
+    from pipeline.discover.report import FIGURES, write_figures
+
+    pid = os.fork()
+    if pid == 0:                                     # the fork: draw, then leave without any clean-up
+        code = 1
+        try:
+            write_figures(paths, d, report_md, rrd=False, figures=FORKED_HALF)
+            code = 0
+        finally:
+            os._exit(code)
+    try:
+        write_figures(paths, d, report_md, rrd=rrd, figures=tuple(k for k in FIGURES if k not in FORKED_HALF))
+    finally:
+        _, status = os.waitpid(pid, 0)
+    return os.waitstatus_to_exitcode(status) == 0
+
+
+def _serve(conn, forked_from) -> None:
     """The second process: import, then draw the one discovery it is sent (None: nothing to draw).
     It answers whether it drew; on failure the first process draws again itself, so an error is
     reported there as it would have been without a second process.  Ctrl-C is the first process's
-    to handle (it stops this one), so it prints no second traceback."""
+    to handle (it stops this one), so it prints no second traceback.  ``forked_from``: the first
+    process's end of the pipe when this is its fork (closed here, so its death ends the wait), else None."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if forked_from is not None:
+        forked_from.close()
     _warm()
     try:
         job = conn.recv()
@@ -61,11 +103,14 @@ def _serve(conn) -> None:
     if job is None:
         return
     try:
-        _draw(*job)
+        if forked_from is not None:
+            drawn = _draw_in_halves(*job)
+        else:
+            _draw(*job)
+            drawn = True
     except Exception:           # noqa: BLE001 -- redone (and reported) by the first process
-        conn.send(False)
-        return
-    conn.send(True)
+        drawn = False
+    conn.send(drawn)
 
 
 def lean(d):
@@ -76,14 +121,17 @@ def lean(d):
 
 
 class Drawer:
-    """Draws in a second process (started at construction) or, when ``background`` is false, here."""
+    """Draws in a second process (started at construction: a fork where ``can_fork``, else spawned)
+    or, when ``background`` is false, here."""
 
     def __init__(self, background: bool) -> None:
         self._proc = self._conn = None
         if background:
-            ctx = multiprocessing.get_context("spawn")
+            forked = can_fork()
+            ctx = multiprocessing.get_context("fork" if forked else "spawn")
             self._conn, child = ctx.Pipe()
-            self._proc = ctx.Process(target=_serve, args=(child,), daemon=True, name="pdr-discover-drawing")
+            self._proc = ctx.Process(target=_serve, args=(child, self._conn if forked else None), daemon=True,
+                                     name="pdr-discover-drawing")
             self._proc.start()
             child.close()
 

@@ -111,6 +111,8 @@ def localisation_png(d: Discovery) -> bytes:
                         ms=3, lw=1.0, label=f"{s} {label}")
         ax.axhline(1.0, color="0.5", lw=0.6)
         ax.set_yscale("log")
+        ax.yaxis.set_major_formatter(_plain_log_formatter())
+        ax.yaxis.set_minor_formatter(_plain_log_formatter(labelOnlyBase=False))
         ax.set_title(key.replace("_", " "), fontsize=9, y=1.0)   # y given: no search for ticks above
         ax.set_xlabel("lag [samples]" if "after" in key else "bin (quantiles, low to high)", fontsize=8)
         ax.set_ylabel("residual RMS / noise sigma", fontsize=8)
@@ -125,6 +127,18 @@ def localisation_png(d: Discovery) -> bytes:
     fig.suptitle(f"{d.meas.name}: residual RMS / noise (1 = noise floor)", fontsize=10, x=0.3)
     _margins(fig, top=0.75, bottom=0.5, left=0.7, hspace=0.75, wspace=0.3)
     return _png(fig)
+
+
+def _plain_log_formatter(**kwargs):
+    """Log-axis tick labels as plain numbers ("0.1", "1", "20"), which labels the same ticks as matplotlib's
+    default; that one writes them as mathtext ($10^{-1}$), whose parsing was half this figure's drawing."""
+    from matplotlib.ticker import LogFormatter
+
+    class PlainLogFormatter(LogFormatter):
+        def _num_to_string(self, x, vmin, vmax):
+            return f"{x:g}"
+
+    return PlainLogFormatter(**kwargs)
 
 
 def _margins(fig, top: float, bottom: float, left: float, hspace: float, wspace: float = 0.2) -> None:
@@ -277,12 +291,16 @@ def write_outputs(out_dir: Path, d: Discovery, doc: dict, *, rrd: bool = True, d
     return paths
 
 
-def write_figures(paths: dict[str, Path], d: Discovery, report_md: str, *, rrd: bool) -> None:
-    """The four PNGs and (``rrd``) the Rerun recording, at ``paths`` (``FILES``' keys)."""
-    write_bytes(paths["signals_png"], signals_png(d))
-    write_bytes(paths["residuals_png"], residuals_png(d))
-    write_bytes(paths["candidates_png"], candidates_png(d))
-    write_bytes(paths["localisation_png"], localisation_png(d))
+FIGURES = {"signals_png": signals_png, "residuals_png": residuals_png, "candidates_png": candidates_png,
+           "localisation_png": localisation_png}
+
+
+def write_figures(paths: dict[str, Path], d: Discovery, report_md: str, *, rrd: bool,
+                  figures: tuple[str, ...] = tuple(FIGURES)) -> None:
+    """The PNGs named in ``figures`` (``FIGURES``' keys: all four unless told) and (``rrd``) the Rerun
+    recording, at ``paths`` (``FILES``' keys)."""
+    for key in figures:
+        write_bytes(paths[key], FIGURES[key](d))
     if rrd:
         write_rrd(paths["rrd"], d, report_md)
 

@@ -164,6 +164,18 @@ def test_cli_refuses_what_it_cannot_read(tmp_path):
     assert res.stderr.startswith("pdr: error:") and len(res.stderr.strip().splitlines()) == 1
 
 
+def test_a_missing_raw_file_is_refused_before_the_discovery_is_imported(tmp_path):
+    """Said at once: nothing of the discovery, its figures or its recording is imported for it; and the
+    objects alive at the end are frozen, out of the teardown's garbage collections."""
+    probe = ("import gc, sys\nfrom pipeline.cli import main\nsys.argv = ['pdr', 'discover', sys.argv[1]]\n"
+             "try:\n    main()\nexcept SystemExit as e:\n    code = e.code\n"
+             "heavy = ['pipeline.discover.stage', 'matplotlib', 'rerun', 'scipy', 'pandas']\n"
+             "print(code, gc.get_freeze_count() > 1000, [m for m in heavy if m in sys.modules])\n")
+    res = subprocess.run([sys.executable, "-c", probe, str(tmp_path / "nope.csv")], capture_output=True, text=True)
+    assert res.stdout.split() == ["2", "True", "[]"], res.stdout + res.stderr
+    assert "nope.csv: no such raw recording" in res.stderr
+
+
 def test_snippet_layers_over_the_rig_like_validation(tmp_path):
     snippet = tmp_path / "effects.toml"
     snippet.write_text("[effects]\nviscous_friction = { b = 0.0002 }\n")
@@ -184,3 +196,20 @@ def test_an_overstated_declared_effect_is_pointed_out_not_named(tmp_path):
     over = doc["declared_too_large"]
     assert [o["name"] for o in over] == ["loop_delay"] and over[0]["fitted"] < 0.003
     assert any("overstate loop_delay" in line for line in doc["unexplained"])
+
+
+def test_the_command_collects_garbage_less_often_and_restores_the_collector():
+    import gc
+
+    from pipeline.discover.cli import fewer_collections
+
+    before = gc.get_threshold()
+    young = []
+    with pytest.raises(RuntimeError), fewer_collections():
+        assert gc.get_threshold()[0] >= 50 * before[0]
+        young += [[k] for k in range(5000)]
+        assert gc.get_count()[0] >= 5000                # not collected yet
+        raise RuntimeError("the command failed")
+    assert gc.get_threshold() == before
+    assert gc.get_freeze_count() == 0
+    assert any(o is young for o in gc.get_objects(generation=2))    # what was young joined the oldest generation

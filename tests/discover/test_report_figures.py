@@ -2,12 +2,14 @@
 
 import io
 import json
+import os
 
 import numpy as np
 import pytest
 from PIL import Image
 
 from pipeline.discover.candidates import parameter_of
+from pipeline.discover.drawing import can_fork
 from pipeline.discover.report import OUTCOME_COLORS, candidates_png, markdown, outcomes
 from pipeline.discover.stage import discover, discovery_json
 from pipeline.model.effects import make_effect
@@ -82,13 +84,65 @@ def test_a_second_process_draws_the_same_figures_and_one_that_died_is_replaced(b
     assert _figures(tmp_path / "died") == _figures(tmp_path / "here")
 
 
-def test_drawer_is_used_only_with_an_idle_core(monkeypatch):
+def test_a_fork_draws_whenever_there_are_two_cores_a_spawned_process_only_with_an_idle_core(monkeypatch):
     from pipeline.discover import drawing
 
     monkeypatch.setattr(drawing.os, "cpu_count", lambda: 2)
     monkeypatch.setattr(drawing.os, "getloadavg", lambda: (1.5, 1.0, 1.0))
-    assert not drawing.idle_core()
+    monkeypatch.setattr(drawing, "can_fork", lambda: False)
+    assert not drawing.second_process()
     monkeypatch.setattr(drawing.os, "getloadavg", lambda: (0.7, 1.0, 1.0))
-    assert drawing.idle_core()
+    assert drawing.second_process()
+    monkeypatch.setattr(drawing, "can_fork", lambda: True)
+    monkeypatch.setattr(drawing.os, "getloadavg", lambda: (3.0, 1.0, 1.0))
+    assert drawing.second_process()                      # a fork repeats no import: no CPU spent for nothing
+    monkeypatch.setattr(drawing.os, "cpu_count", lambda: 1)
+    assert not drawing.second_process()
+    monkeypatch.setenv("PDR_DISCOVER_DRAW", "process")
+    assert drawing.second_process()
     monkeypatch.setenv("PDR_DISCOVER_DRAW", "here")
-    assert not drawing.idle_core()
+    assert not drawing.second_process()
+
+
+@pytest.mark.skipif(not can_fork(), reason="processes cannot be forked here")
+def test_a_half_the_forks_fork_failed_to_draw_is_drawn_again_here(backlash_discovery, tmp_path, monkeypatch):
+    """The second process (a fork) hands half the figures to a fork of its own; when that one fails,
+    the first process draws everything again (the same bytes)."""
+    from pipeline.discover import report
+    from pipeline.discover.drawing import FORKED_HALF, Drawer
+
+    d, doc = backlash_discovery
+    report.write_outputs(tmp_path / "here", d, doc, rrd=False, drawer=Drawer(background=False))
+    first, draw = os.getpid(), report.FIGURES[FORKED_HALF[0]]
+    failed = tmp_path / "failed-in"
+
+    def only_here(d_):
+        if os.getpid() != first:
+            failed.mkdir(exist_ok=True)
+            (failed / str(os.getpid())).touch()
+            raise RuntimeError("not here")
+        return draw(d_)
+
+    monkeypatch.setitem(report.FIGURES, FORKED_HALF[0], only_here)
+    with Drawer(background=True) as drawer:
+        second = drawer._proc.pid
+        report.write_outputs(tmp_path / "again", d, doc, rrd=False, drawer=drawer)
+    drew = [int(p.name) for p in failed.iterdir()]
+    assert len(drew) == 1 and drew[0] not in (first, second)     # the second process's fork drew it (and failed)
+    assert _figures(tmp_path / "again") == _figures(tmp_path / "here")
+
+
+def test_no_figure_parses_mathtext(backlash_discovery, monkeypatch):
+    """Tick labels are plain numbers ("0.1", "1", "10"): mathtext parsing was half the localisation figure."""
+    from matplotlib import mathtext
+
+    from pipeline.discover.report import localisation_png, residuals_png, signals_png
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("mathtext parsed")
+
+    monkeypatch.setattr(mathtext.MathTextParser, "parse", refuse)
+    d, _doc = backlash_discovery
+    for draw in (signals_png, residuals_png, candidates_png, localisation_png):
+        with Image.open(io.BytesIO(draw(d))) as im:
+            assert im.size[0] > 500
