@@ -164,7 +164,8 @@ def assess(ev: Evaluator, meas: Measurement, effects: tuple[Effect, ...], name: 
                    structure_left=float(left),
                    signature_before=sig_b, signature_after=sig_a)
     a.checks = {
-        "improvement_vs_noise": any(g >= min_gain(s, meas.n) or g * meas.n >= SMALL_GAIN_CHI2 for s, g in gains.items()),
+        "improvement_vs_noise": any(g >= min_gain(s, meas.n) or g * meas.n >= SMALL_GAIN_CHI2
+                                    for s, g in gains.items()),
         # of a model already within STRUCTURE_FLOORS no share is asked: what it leaves may be the
         # floor's own error (a 0.05 rad backlash beside softer springs removed 0.5 of 2.1 noise variances
         # of angle structure, 650 in chi-square, where the true model leaves 1.6)
@@ -197,7 +198,8 @@ def beyond_zero_error(fit: Fit, meas: Measurement, floor: dict[str, float]) -> b
     """Whether the candidate stands ``ZERO_SIGMAS`` clear of the error of a zero read off the data
     that its value is confounded with (True when there is no such zero).  That zero is a mean of
     rest readings, whose error is the signal's noise floor over their number: the floor is read off
-    the whole recording, the rest readings' own spread off a few (11 readings read it 28 % low on a randomised draw)."""
+    the whole recording, the rest readings' own spread off a few (11 of them read it 28 % low on a
+    randomised draw)."""
     p = CATALOGUE[fit.name].PARAMS[0]
     rest = meas.zero_samples.get(p.zero_of, 0)
     if not rest or p.zero_of not in floor:

@@ -9,7 +9,8 @@ A candidate is added only when all of these hold (issue 6, step 3):
               without making any signal worse by more than ``MAX_WORSENING_FLOORS`` (or a
               tenth of its structure);
 3. BIC:       2*delta(nll) + k*ln(n) <= ``MAX_DELTA_BIC`` on all samples;
-4. interval:  its ~95 % interval excludes the value at which it is absent;
+4. interval:  its ~95 % interval excludes the value at which it is absent (a sensor's zero read
+              off the data: and stands three of that zero's standard errors clear of it);
 5. signature: the residual pattern that points at it shrinks by half (or to the noise,
               or the candidate removes ``DOMINANT_SHARE`` of all the structure);
 6. size:      its fitted parameter is at least ``MIN_SIZE_SHARE`` of the way from "absent" to

@@ -202,7 +202,8 @@ def after_board_reset(paths: RunPaths) -> bool:
 def zero_samples(paths: RunPaths) -> dict[str, int]:
     """How many rest readings the current's zero is the mean of, when ingest read it off the data."""
     zero = _ingest_segment(paths).get("current_zero") or {}
-    return {"current": int(zero["samples"])} if zero.get("method", "configured") != "configured" else {}
+    rest = zero.get("samples") if zero.get("method", "configured") != "configured" else None
+    return {"current": rest} if isinstance(rest, int) and rest > 0 else {}
 
 
 LATER_SEGMENT_FACTOR = 2.0
