@@ -61,7 +61,7 @@ COUNTER_REFITS = 3          # after a reset: refits of the effects and the count
 # samples, ~8 CPU s) stays within this.  Counted in work, not seconds: the same recording gets the same
 # rounds, and so the same answer, on a busy machine as on an idle one.
 WORK_BUDGET = 6_000_000
-LATER_FULL_FITS = 3          # every candidate gets the full assessment in round 1; later rounds only the
+LATER_FULL_FITS = 4          # every candidate gets the full assessment in round 1; later rounds only the
                              # few that gain most in the coarse scan
 
 
