@@ -137,6 +137,17 @@ def load_signals(paths: RunPaths) -> pd.DataFrame:
     return read_parquet(paths.signals)
 
 
+def ingest_segment(paths: RunPaths) -> dict:
+    """This run's entry among its ingest report's segments (index, current zero, wall clock, ...);
+    {} when the report cannot be read: what it tells is context, never needed to go on."""
+    try:
+        report = json.loads(paths.ingest_report.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
+    segments = report.get("segments", []) if isinstance(report, dict) else []
+    return next((seg for seg in segments if isinstance(seg, dict) and seg.get("run") == paths.name), {})
+
+
 def load_config(paths: RunPaths) -> RigConfig:
     """The rig configuration resolved at ingest time (stored so later stages never re-read TOML)."""
     data = json.loads(paths.rig_config.read_text(encoding="utf-8"))

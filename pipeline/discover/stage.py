@@ -20,7 +20,7 @@ from pipeline.discover.residuals import binned, describe, signatures
 from pipeline.discover.selection import Selection, check_declared, select
 from pipeline.model.effects import Effect
 from pipeline.model.simulate import SimResult
-from pipeline.runs import RunPaths, load_config
+from pipeline.runs import RunPaths, ingest_segment, load_config
 from pipeline.validate.metrics import mse_only, signal_errors
 from pipeline.validate.stage import finite_or_none, load_kinematics
 
@@ -182,26 +182,17 @@ def discovery_json(d: Discovery, recording: str) -> dict:
 
 # ------------------------------------------------------------------ shell
 
-def _ingest_segment(paths: RunPaths) -> dict:
-    """The run's segment in its ingest report ({} when there is none to read)."""
-    import json
-
-    try:
-        report = json.loads(paths.ingest_report.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return {}
-    return next((seg for seg in report.get("segments", [])
-                 if isinstance(seg, dict) and seg.get("run") == report.get("run")), {})
+def after_board_reset(segment: dict) -> bool:
+    """Whether a run's ingest segment (``runs.ingest_segment``) follows the capture's first: ingest
+    starts a segment at each board reset."""
+    index = segment.get("index", 0)
+    return isinstance(index, int) and index > 0
 
 
-def after_board_reset(paths: RunPaths) -> bool:
-    """Whether the run is a segment after the capture's first (ingest starts a segment at each board reset)."""
-    return _ingest_segment(paths).get("index", 0) > 0
-
-
-def zero_samples(paths: RunPaths) -> dict[str, int]:
+def zero_samples(segment: dict) -> dict[str, int]:
     """How many rest readings the current's zero is the mean of, when ingest read it off the data."""
-    zero = _ingest_segment(paths).get("current_zero") or {}
+    zero = segment.get("current_zero")
+    zero = zero if isinstance(zero, dict) else {}
     rest = zero.get("samples") if zero.get("method", "configured") != "configured" else None
     return {"current": rest} if isinstance(rest, int) and rest > 0 else {}
 
@@ -229,6 +220,7 @@ def segment_to_discover(runs: list[RunPaths]) -> RunPaths:
 def discover_run(paths: RunPaths, recording: str | None = None) -> tuple[Discovery, dict]:
     """Discovery on one processed (ingested and derived) run."""
     kin = load_kinematics(paths)
-    d = discover(kin, load_config(paths), paths.name, after_reset=after_board_reset(paths),
-                 zero_samples=zero_samples(paths))
+    segment = ingest_segment(paths)
+    d = discover(kin, load_config(paths), paths.name, after_reset=after_board_reset(segment),
+                 zero_samples=zero_samples(segment))
     return d, discovery_json(d, recording if recording is not None else str(paths.root))

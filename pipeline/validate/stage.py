@@ -9,7 +9,6 @@ atomically.
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from dataclasses import asdict
@@ -23,7 +22,7 @@ from pipeline.config import RigConfig, resolve_config
 from pipeline.errors import PdrError
 from pipeline.io.atomic import read_parquet, write_json, write_parquet
 from pipeline.model.effects import PlantSpec
-from pipeline.runs import RunPaths, load_config
+from pipeline.runs import RunPaths, ingest_segment, load_config
 from pipeline.derive.tables import schema_table
 from pipeline.validate.compare import comparison_table, compare, initial_state, possible_ways, simulate_both
 
@@ -57,12 +56,7 @@ def resolve_model(cfg: RigConfig, override: ModelOverride) -> tuple[PlantSpec, s
 
 def _wall_clock_start(paths: RunPaths) -> str | None:
     """The terminal's stamp of this run's first sample, from the ingest report (None when unknown)."""
-    try:
-        report = json.loads(paths.ingest_report.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return None
-    return next((seg.get("wall_clock_start") for seg in report.get("segments", []) if seg.get("run") == paths.name),
-                None)
+    return ingest_segment(paths).get("wall_clock_start")
 
 
 def _model_json(spec: PlantSpec, source: str) -> dict:

@@ -71,6 +71,7 @@ def test_after_a_board_reset_the_counters_zero_is_a_nuisance_not_a_torque(tmp_pa
     torque, which only moves it, is not named for it.  The segment's runs say they follow a reset."""
     from pipeline.derive.stage import derive_run
     from pipeline.discover.stage import after_board_reset, discover_run
+    from pipeline.runs import ingest_segment
     from pipeline.ingest.stage import ingest_recording
     from pipeline.rig.recording import RigSetup, make_recording, write_recording
     from pipeline.rig.serial import Artefacts
@@ -80,7 +81,7 @@ def test_after_a_board_reset_the_counters_zero_is_a_nuisance_not_a_torque(tmp_pa
     assert abs(rec.truth_meta["segments"][1]["theta_ref_rad"]) > 0.02          # the count restarted off the rest
     write_recording(rec, tmp_path / "raw", "reset")
     first, after = ingest_recording(tmp_path / "raw" / "reset.csv", tmp_path / "processed").runs
-    assert not after_board_reset(first) and after_board_reset(after)
+    assert not after_board_reset(ingest_segment(first)) and after_board_reset(ingest_segment(after))
     derive_run(after)
     d, doc = discover_run(after)
     assert doc["verdict"] == ("explained" if effects else "none"), doc["effects"]
@@ -120,6 +121,7 @@ def _randomised(index: int, tmp_path, after_reset: bool = False) -> tuple:
 
     from pipeline.derive.stage import derive_run
     from pipeline.discover.stage import after_board_reset, discover_run, segment_to_discover
+    from pipeline.runs import ingest_segment
     from pipeline.ingest.stage import ingest_recording
     from pipeline.rig.randomised import randomised_setup
     from pipeline.rig.recording import make_recording, write_recording
@@ -130,7 +132,7 @@ def _randomised(index: int, tmp_path, after_reset: bool = False) -> tuple:
     for paths in runs:
         derive_run(paths)
     if after_reset:
-        assert len(runs) > 1 and after_board_reset(runs[-1])
+        assert len(runs) > 1 and after_board_reset(ingest_segment(runs[-1]))
     _, doc = discover_run(runs[-1] if after_reset else segment_to_discover(runs))
     return draw, doc
 
@@ -342,3 +344,18 @@ def test_a_later_round_fully_assesses_four_candidates(tmp_path):
     After the viscous friction, the backlash was fourth in round two's coarse scan, behind springs 5 %
     softer that then took its place; only three were fully assessed."""
     _named_right(*_randomised(131, tmp_path))
+
+
+@pytest.mark.parametrize("report", ['[]', '{"segments": [{"run": "r", "index": "2", "current_zero": []}]}',
+                                    '{"segments": [{"run": "r", "current_zero": {"method": "dir == 0"}}]}', 'not json'])
+def test_a_hand_edited_ingest_report_reads_as_no_reset_and_no_automatic_zero(tmp_path, report):
+    """What discovery reads from a run's ingest report is context: an unreadable or mangled entry is
+    taken as "first segment, configured zero", never a traceback."""
+    from pipeline.discover.stage import after_board_reset, zero_samples
+    from pipeline.runs import RunPaths, ingest_segment
+
+    paths = RunPaths(tmp_path / "r")
+    paths.root.mkdir()
+    paths.ingest_report.write_text(report, encoding="utf-8")
+    segment = ingest_segment(paths)
+    assert not after_board_reset(segment) and zero_samples(segment) == {}
