@@ -65,3 +65,23 @@ def test_without_gaps_the_instants_are_the_logged_ones():
     t_loop, d_loop, kept = with_lost_samples(t, d)
     assert t_loop is t or np.array_equal(t_loop, t)
     assert np.array_equal(d_loop, d) and np.array_equal(kept, np.arange(200))
+
+
+def test_filled_gaps_are_remembered_read_only_and_keyed_by_every_input():
+    """A fit replays one recording hundreds of times; the gaps are filled once.  The shared result is
+    read-only (a caller writing into it would change every later replay), and a different angle,
+    command or guard is a different entry."""
+    from pipeline.model.simulate import lost_samples_filled, with_lost_samples
+
+    spec = default_config().plant_spec()
+    t = np.arange(300) * 0.05
+    full = simulate(spec, t)
+    keep = np.setdiff1d(np.arange(len(t)), [40, 41, 150, 151, 152])
+    args = (t[keep], full.dir[keep], full.theta[keep], spec.guard_rad)
+    first, again = with_lost_samples(*args), with_lost_samples(*(np.copy(a) for a in args[:3]), args[3])
+    assert all(a is b for a, b in zip(first, again))
+    for got, want in zip(first, lost_samples_filled(*args)):
+        assert np.array_equal(got, want) and not got.flags.writeable
+    other_guard = with_lost_samples(*args[:3], 0.5 * spec.guard_rad)
+    assert other_guard[1] is not first[1]
+    assert with_lost_samples(*args[:2])[1] is not first[1]        # no angle: undecided reversals, another entry
