@@ -117,7 +117,8 @@ def run_one(index: int, seed: int, work: Path) -> dict:
             err = max(abs(found[name_][k] - v) / abs(v) for k, v in params.items())
             errors[name_] = err if np.isfinite(err) else None      # a parameter found as NaN: kept, not lost in JSON
     right = set(found) == set(row["truth"]) and doc["verdict"] == row["expected"]
-    return row | {"verdict": doc["verdict"], "found": found, "right": right, "param_err": errors}
+    return row | {"verdict": doc["verdict"], "found": found, "right": right, "param_err": errors,
+                  "work": doc.get("work")}
 
 
 def _running() -> int | None:

@@ -101,6 +101,11 @@ class Measurement:
         """The fitted signals with their noise variances, from the recording (validation's numbers)."""
         return observed_signals(self.kinematics)
 
+    @property
+    def start_runs(self) -> int:
+        """Simulations run for start estimates so far, by this measurement and the copies sharing its estimators."""
+        return sum(e.runs for e in self._estimators.values())
+
     def x0(self, spec: PlantSpec, dir_log: np.ndarray | None = None) -> Start:
         """The start (x0 with its uncertainty, the pre-log commands) under ``spec``, estimated
         from the data on the recording's own instants as validation does (so the MSEs agree)."""

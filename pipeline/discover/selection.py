@@ -35,7 +35,7 @@ reported with both scores.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
@@ -57,10 +57,15 @@ from pipeline.model.effects import CATALOGUE, Effect
 NEAR_TIE = 2.0              # runner-up leaves at most twice the winner's held-out structure (+1 noise variance)
 MAX_EFFECTS = 3
 COUNTER_REFITS = 3          # after a reset: refits of the effects and the counter's offset, in turn, at the end
-# A further round starts only if, at the last round's pace, discovery's work (``Evaluator.work``: simulated
-# samples, ~8 CPU s) stays within this.  Counted in work, not seconds: the same recording gets the same
-# rounds, and so the same answer, on a busy machine as on an idle one.
-WORK_BUDGET = 6_000_000
+# Discovery's work (``Evaluator.work``: its simulations, start estimates included, ~0.6 us of CPU a unit) is
+# bounded.  A round, a pair restart, each candidate of a round after the first and each of a thorough round
+# start only while a run of the rounds is within WORK_BUDGET (~6 s), and all the runs on one recording (the
+# runner-up's, after resettled switches) within TOTAL_WORK_BUDGET (~7.5 s); a later run starts only with
+# LATER_RUN_WORK of that left.  Counted, not timed: the same recording gets the same rounds, and so the
+# same answer, on a busy machine as on an idle one.
+WORK_BUDGET = 10_500_000
+TOTAL_WORK_BUDGET = 12_000_000
+LATER_RUN_WORK = 2_000_000
 LATER_FULL_FITS = 4          # every candidate gets the full assessment in round 1; later rounds only the
                              # few that gain most in the coarse scan
 
@@ -78,7 +83,8 @@ class Selection:
     failures: list[str]                   # parameter sets the simulator refused (scored as infinitely bad)
     command_before: np.ndarray            # the command replayed for the base model ...
     command_after: np.ndarray             # ... and the final one (differ only in an inferred motor start)
-    stopped_for_time: bool                # a further round was not started (WORK_BUDGET)
+    stopped_for_time: bool                # a further round was not started (WORK_BUDGET, TOTAL_WORK_BUDGET)
+    work: int                             # what the rounds cost, all runs on the recording (Evaluator.work)
     pruned: list[str]                     # accepted in a round, dropped once later effects made them redundant
     intervals: list[tuple[float, float]]  # ~95 % interval of each final effect's parameter, all refitted jointly
     meas: Measurement                     # the measurement fitted (inferred switches settled)
@@ -149,29 +155,40 @@ def select(meas: Measurement, names: tuple[str, ...] | None = None) -> Selection
     the model with those effects, and, if any switch moves, the rounds go on from those effects
     refitted on the new switches: a heavier rack or a backlash shifts where the angle crosses a guard,
     so the base model can time a switch a sample off, and that one sample is structure that hides the
-    next effect.  The run that leaves less structure is kept.  A pair restart (``thorough.pair_restart``) is tried only on the switches
-    as finally settled."""
+    next effect.  The run that leaves less structure is kept.
+
+    Cheapest first, all within one work budget (``TOTAL_WORK_BUDGET``): plain rounds; when they leave
+    structure, plain rounds from round one's runner-up (``_from_the_runner_up``); when the better of
+    those still leaves some, the wide searches (a thorough round when a round adopts nothing, a pair
+    restart: ``thorough``) from its effects, on the switches as finally settled."""
     names = tuple(CATALOGUE) if names is None else names
     if not meas.angle_reference_known:
         names = tuple(n for n in names if not only_a_constant_torque(meas, n))
-    return _from_the_runner_up(_settled_and_selected(meas, names), names)
+    sel = _from_the_runner_up(_settled_and_selected(meas, names), names)
+    if sel.verdict != "unexplained" or not wide_searches(sel.meas) or sel.work > TOTAL_WORK_BUDGET - LATER_RUN_WORK:
+        return sel
+    # the wide searches last: from the effects of the run that left less structure
+    return _less_structure(_forward(sel.meas, names, sel.effects, sel.rounds[:len(sel.effects)], spent=sel.work,
+                                    wide=True), sel)
 
 
 def _settled_and_selected(meas: Measurement, names: tuple[str, ...]) -> Selection:
     if not ambiguous_switches(meas):
         return _forward(meas, names)
-    first = _forward(_settled(meas, ()), names, pairs=False)
+    first = _forward(_settled(meas, ()), names)
     if first.verdict != "unexplained" or not first.effects:
         return first
     again = _settled(meas, first.effects)
-    if np.array_equal(again.dir, first.meas.dir):
+    if np.array_equal(again.dir, first.meas.dir) or first.work > TOTAL_WORK_BUDGET - LATER_RUN_WORK:
         return first
-    second = _forward(again, names, first.effects, first.rounds)
+    second = _forward(again, names, first.effects, first.rounds, spent=first.work)
     return _less_structure(second, first)
 
 
 def _less_structure(a: Selection, b: Selection) -> Selection:
-    return a if max(a.excess_after.values()) < max(b.excess_after.values()) else b
+    """The run that leaves less structure, with the work of both."""
+    kept = a if max(a.excess_after.values()) < max(b.excess_after.values()) else b
+    return replace(kept, work=max(a.work, b.work))
 
 
 def _from_the_runner_up(sel: Selection, names: tuple[str, ...]) -> Selection:
@@ -182,9 +199,9 @@ def _from_the_runner_up(sel: Selection, names: tuple[str, ...]) -> Selection:
     if sel.verdict != "unexplained" or not sel.effects or not sel.rounds or not wide_searches(sel.meas):
         return sel
     passed = [a for a in sel.rounds[0] if isinstance(a, Assessment) and a.accepted]
-    if len(passed) < 2:
+    if len(passed) < 2 or sel.work > TOTAL_WORK_BUDGET - LATER_RUN_WORK:
         return sel
-    return _less_structure(_forward(sel.meas, names, (passed[1].fit.effect,), sel.rounds[:1]), sel)
+    return _less_structure(_forward(sel.meas, names, (passed[1].fit.effect,), sel.rounds[:1], spent=sel.work), sel)
 
 
 def _settled(meas: Measurement, effects: tuple[Effect, ...]) -> Measurement:
@@ -194,17 +211,20 @@ def _settled(meas: Measurement, effects: tuple[Effect, ...]) -> Measurement:
 
 
 def _forward(meas: Measurement, names: tuple[str, ...], found: tuple[Effect, ...] = (),
-             earlier: list[list[Assessment | Screened]] | None = None, pairs: bool = True) -> Selection:
+             earlier: list[list[Assessment | Screened]] | None = None, wide: bool = False,
+             spent: int = 0) -> Selection:
     """Rounds, twin swaps, pruning and the verdict on a measurement whose switches are settled;
     ``found``: effects a run on the same recording adopted in its rounds ``earlier``, refitted here
-    and the rounds continued after them; ``pairs``: whether a pair of candidates may restart the rounds."""
+    and the rounds continued after them; ``wide``: whether the wide searches run (a thorough round when
+    a round adopts nothing, a pair restart: ``thorough``);
+    ``spent``: the work of the runs before this one on the recording (``TOTAL_WORK_BUDGET``)."""
+    budget = min(WORK_BUDGET, TOTAL_WORK_BUDGET - spent)
     floor = noise_floor(meas, meas.replay(meas.spec()))
     ev = Evaluator(meas, floor)
     folds = folds_by_cycle(meas)
     effects: tuple[Effect, ...] = joint_fit(ev, found)
     rounds: list[list[Assessment | Screened]] = list(earlier or [])[:len(found)]
     near_tie = None
-    last_round = 0
     stopped_for_time = False
     restarted = refilled = False
     adopted: set[str] = set()
@@ -213,11 +233,10 @@ def _forward(meas: Measurement, names: tuple[str, ...], found: tuple[Effect, ...
             remaining = [n for n in names if n not in {e.name for e in effects}]
             if not remaining or (effects and not worth_another_round(excess(ev, effects), meas.n)):
                 break
-            round_start = ev.work
-            if round_ > 1 and round_start + last_round > WORK_BUDGET:
+            if round_ > 1 and ev.work > budget:
                 stopped_for_time = True
                 break
-            assessed, screened = _round(ev, meas, effects, remaining, folds, round_)
+            assessed, screened = _round(ev, meas, effects, remaining, folds, round_, budget, wide)
             rounds.append([*assessed, *screened])
             passing = [a for a in assessed if a.accepted]
             if not passing:
@@ -225,13 +244,12 @@ def _forward(meas: Measurement, names: tuple[str, ...], found: tuple[Effect, ...
             best = passing[0]
             near_tie = near_tie or _near_tie(round_, best, assessed)
             effects = best.fit.effects
-            last_round = ev.work - round_start
-        if not (restarted or not pairs or not rounds or ev.work > WORK_BUDGET or not wide_searches(meas)
+        if not (restarted or not wide or not rounds or ev.work > budget or not wide_searches(meas)
                 or structure_after_start(ev, effects) <= STRUCTURE_FLOORS):
             # structure left that no single candidate removes (none adopted, or the rounds' last): two round-one
             # candidates at once, then rounds again
             restarted = True
-            pair = pair_restart(ev, meas, effects, rounds[0], WORK_BUDGET)
+            pair = pair_restart(ev, meas, effects, rounds[0], budget)
             if pair is not None:
                 effects = pair
                 continue
@@ -243,9 +261,10 @@ def _forward(meas: Measurement, names: tuple[str, ...], found: tuple[Effect, ...
         dropped = len(kept) < len(effects)
         effects = kept
         # an effect the later ones made redundant freed a round (the last one may not have been run)
-        if refilled or not dropped or len(effects) >= MAX_EFFECTS or ev.work > WORK_BUDGET:
+        if refilled or not dropped or len(effects) >= MAX_EFFECTS or ev.work > budget:
             break
         refilled = True
+    stopped_for_time = stopped_for_time or ev.work > budget         # a round's later candidates not assessed
     ex_before = excess(ev, ())
     refine_start(ev, effects)
     ex_after = excess(ev, effects)
@@ -263,7 +282,7 @@ def _forward(meas: Measurement, names: tuple[str, ...], found: tuple[Effect, ...
     else:
         verdict = "explained" if effects else "none"
     return Selection(effects=effects, verdict=verdict, rounds=rounds, floor=floor, excess_before=ex_before,
-                     excess_after=ex_after, near_tie=near_tie, simulations=ev.simulations,
+                     excess_after=ex_after, near_tie=near_tie, simulations=ev.simulations, work=spent + ev.work,
                      failures=ev.failures, command_before=ev.command_for(()),
                      command_after=ev.command_for(effects), meas=meas, stopped_for_time=stopped_for_time,
                      pruned=pruned, intervals=spans)
@@ -303,7 +322,8 @@ def _zero_beside_structure(effect: Effect, ex_after: dict[str, float]) -> bool:
 
 
 def _round(ev: Evaluator, meas: Measurement, effects: tuple[Effect, ...], remaining: list[str],
-           folds: tuple[np.ndarray, np.ndarray], round_: int) -> tuple[list[Assessment], list[Screened]]:
+           folds: tuple[np.ndarray, np.ndarray], round_: int, budget: int,
+           wide: bool) -> tuple[list[Assessment], list[Screened]]:
     """One round: every remaining candidate scanned, the best by the scan (all in round one) assessed;
     when none passes and structure is left, each again from its profile walk (``thorough_round``)."""
     nll_now = ev.nll(ev.sim(effects))
@@ -312,15 +332,18 @@ def _round(ev: Evaluator, meas: Measurement, effects: tuple[Effect, ...], remain
     scan_gain = {n: nll_now - float(np.min(scans[n].nll)) for n in remaining}
     order = sorted(remaining, key=lambda n: -scan_gain[n])
     k = len(order) if round_ == 1 else LATER_FULL_FITS
-    full = [n for n in order[:k] if scan_gain[n] > 0]
-    assessed = sorted((assess(ev, meas, effects, n, folds, round_, scans[n]) for n in full),
-                      key=lambda a: -a.fit.heldout_nll_gain)
+    assessed = []
+    for n in order[:k]:                       # most promising first, while the budget lasts (one at least)
+        if scan_gain[n] > 0 and (not assessed or ev.work <= budget):
+            assessed.append(assess(ev, meas, effects, n, folds, round_, scans[n]))
+    full = {a.fit.name for a in assessed}
+    assessed.sort(key=lambda a: -a.fit.heldout_nll_gain)
     screened = [Screened(n, round_, float(scans[n].grid[np.argmin(scans[n].nll)]), scan_gain[n])
                 for n in order if n not in full]
-    if (not any(a.accepted for a in assessed) and effects and wide_searches(meas)
+    if (wide and not any(a.accepted for a in assessed) and effects and wide_searches(meas)
             and structure_after_start(ev, effects) > STRUCTURE_FLOORS):
         redone = thorough_round(ev, meas, effects, scan_gain, scans, folds, round_, [*assessed, *screened],
-                                WORK_BUDGET)
+                                budget)
         assessed = [a for a in redone if isinstance(a, Assessment)]
         screened = [a for a in redone if not isinstance(a, Assessment)]
     return assessed, screened

@@ -95,6 +95,7 @@ class _Problem:
     def __init__(self, spec: PlantSpec, t: np.ndarray, observed: Observed) -> None:
         self.n = n = _window(t)
         self.spec = spec
+        self.runs = 0                                   # simulations run (a caller's budget counts them)
         self.I0 = 0.0
         self.offset = 0.0                               # rad: the counter's zero off the springs' rest
         self.lead = lead_offsets(float(spec.Td), float(spec.period_s))
@@ -129,6 +130,7 @@ class _Problem:
         log = np.concatenate([np.asarray(commands, dtype=np.int8), loop_log])
         key = np.asarray(z, dtype=float).tobytes() + log.tobytes()
         if key not in self._runs:
+            self.runs += 1
             self._runs[key] = simulate(self.spec, self.t, x0=tuple(z), dir0=first_dir(log), dir_log=log,
                                        closed_loop=False)
         return self._runs[key]
@@ -327,6 +329,11 @@ class StartEstimator:
         p = self.p
         cost = [float(np.sum(((p.y - p.outputs(p.run(c * STATE_SCALES, commands))) * w) ** 2)) for c in (a, last)]
         return last if cost[1] < cost[0] else a
+
+    @property
+    def runs(self) -> int:
+        """Simulations this estimator has run, its unit and pulse responses included."""
+        return self.p.runs
 
     def window(self, dir_log: np.ndarray) -> bytes:
         """The part of a command sequence the estimate sees (a cache key)."""

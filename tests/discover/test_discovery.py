@@ -11,6 +11,7 @@ import pytest
 from pipeline.config import default_config
 from pipeline.discover.candidates import parameter_of
 from pipeline.discover.stage import discover, discovery_json
+from pipeline.discover.measurement import measurement_from_kinematics
 from pipeline.model.effects import make_effect
 from pipeline.rig.serial import Artefacts
 from tests.discover.synthetic import cogging_kinematics, rig_kinematics
@@ -156,3 +157,20 @@ def test_the_work_budget_decides_the_same_way_on_any_machine(tmp_path, monkeypat
     cut = discover(kin, rig, "pair").selection
     assert cut.stopped_for_time and len(cut.rounds) == 1 and len(cut.effects) == 1
     assert cut.simulations < full.simulations
+
+
+def test_a_later_run_on_the_same_recording_gets_only_what_the_total_budget_leaves(tmp_path, monkeypatch):
+    """The runner-up's rounds (and the rounds after resettled switches) share one budget with the first
+    run, so the slowest recording is bounded as a whole: a run started with the total already spent
+    stops after its first round, and the selection reports the work of both."""
+    from pipeline.discover import selection
+
+    hidden = (_effect("viscous_friction", 3e-4), _effect("current_sensor_offset", 0.08))
+    kin, rig, _ = rig_kinematics(hidden, seed=2, work=tmp_path)
+    meas = measurement_from_kinematics(kin, rig, "pair")
+    names = tuple(selection.CATALOGUE)
+    fresh = selection._forward(meas, names)
+    assert not fresh.stopped_for_time and len(fresh.rounds) >= 2 and fresh.work > 0
+    late = selection._forward(meas, names, spent=selection.TOTAL_WORK_BUDGET)
+    assert late.stopped_for_time and len(late.rounds) == 1
+    assert late.work > selection.TOTAL_WORK_BUDGET

@@ -68,3 +68,23 @@ def test_refuses_tables_it_cannot_use():
         measurement_from_kinematics(kin.head(5), cfg, "short")
     with pytest.raises(PdrError, match="dir"):
         measurement_from_kinematics(kin.drop(columns=["dir"]), cfg, "nodir")
+
+
+def test_an_evaluators_work_counts_the_start_estimates_of_the_models_it_replays():
+    """A Coulomb plant is not affine in its start: each start estimate runs a Gauss-Newton refinement, ~20
+    simulations of the first seconds, which cost more than the replay itself.  The budget must see them."""
+    from pipeline.discover.candidates import START_RUN_COST, Evaluator, make, replay_cost
+    from pipeline.discover.residuals import noise_floor
+
+    spec = default_config().plant_spec()
+    meas = measurement_from_kinematics(_kinematics(spec, counts_per_rev=1440), default_config(), "k")
+    ev = Evaluator(meas, noise_floor(meas, meas.replay(meas.spec())))
+    before, runs = ev.work, meas.start_runs
+    coulomb = (make("coulomb_friction", 2e-3),)
+    ev.sim(coulomb)
+    assert meas.start_runs - runs >= 8                  # its unit responses and a refinement
+    assert ev.work - before == replay_cost(meas.spec(coulomb), meas.n) + START_RUN_COST * (meas.start_runs - runs)
+    assert replay_cost(meas.spec(coulomb), meas.n) > replay_cost(meas.spec(), meas.n)    # events located
+    again = ev.work
+    ev.sim(coulomb)                                     # remembered: nothing more to pay
+    assert ev.work == again
