@@ -58,9 +58,11 @@ def _step(p: Param, v: float) -> float:
     return max(abs(v) * 1e-3, (hi_b - lo_b) * 1e-6)
 
 
-def sensitivity(ev, effects: tuple[Effect, ...]) -> Sensitivity:
-    """Forward differences, one simulation per parameter (stepping inward at a bound or a failure)."""
-    r0 = residuals(ev.meas, ev.sim(effects))
+def sensitivity(ev, effects: tuple[Effect, ...], replayed=None) -> Sensitivity:
+    """Forward differences, one simulation per parameter (stepping inward at a bound or a failure);
+    ``replayed``: effects -> residuals (default: the Evaluator's replay, each model from its own start)."""
+    replayed = replayed or (lambda effs: residuals(ev.meas, ev.sim(effs)))
+    r0 = replayed(effects)
     jac = []
     base = values_of(effects)
     for c, (_, p) in enumerate(coordinates(effects)):
@@ -69,10 +71,10 @@ def sensitivity(ev, effects: tuple[Effect, ...]) -> Sensitivity:
         h = _step(p, v)
         v2 = v + h if v + h <= hi_b else v - h
         moved = lambda x: with_values(effects, np.concatenate([base[:c], [x], base[c + 1:]]))  # noqa: E731
-        r1 = residuals(ev.meas, ev.sim(moved(v2)))
+        r1 = replayed(moved(v2))
         if not all(np.all(np.isfinite(r)) for r in r1.values()) and v - h >= lo_b:
             v2 = v - h
-            r1 = residuals(ev.meas, ev.sim(moved(v2)))
+            r1 = replayed(moved(v2))
         jac.append({s: (r1[s] - r0[s]) / (v2 - v) for s in r0})
     return Sensitivity(r0=r0, jac=jac)
 

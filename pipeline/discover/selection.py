@@ -45,7 +45,7 @@ from pipeline.discover.evidence import (MAX_DELTA_BIC, STRUCTURE_FLOORS, Assessm
 from pipeline.discover.joint import effect_intervals, joint_fit, sensitivity
 from pipeline.discover.measurement import Measurement, ambiguous_switches, settle_switches
 from pipeline.discover.residuals import noise_floor
-from pipeline.discover.start_refit import refine_start
+from pipeline.discover.start_refit import held_start_sensitivity, refine_start
 from pipeline.discover.thorough import pair_restart, structure_after_start, thorough_round
 from pipeline.model.effects import CATALOGUE, Effect
 
@@ -275,7 +275,7 @@ def _forward(meas: Measurement, names: tuple[str, ...], found: tuple[Effect, ...
         refine_start(ev, effects)
         ex_after = excess(ev, effects)
     pruned = [n for n in CATALOGUE if n in adopted - {e.name for e in effects}]
-    spans = effect_intervals(sensitivity(ev, effects), effects) if effects else []
+    spans = effect_intervals(held_start_sensitivity(ev, effects), effects) if effects else []
     structured = max(ex_after.values()) > STRUCTURE_FLOORS
     if structured:
         verdict = "unexplained"

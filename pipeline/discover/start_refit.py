@@ -21,6 +21,7 @@ from dataclasses import replace
 import numpy as np
 
 from pipeline.discover.candidates import ONSET_SHIFTS, Evaluator
+from pipeline.discover.joint import Sensitivity, sensitivity
 from pipeline.discover.residuals import residuals
 from pipeline.model.effects import Effect
 from pipeline.validate.initial_state import STATE_SCALES
@@ -130,3 +131,28 @@ def refine_start(ev: Evaluator, effects: tuple[Effect, ...]) -> Start | None:
         meas.pin_start(full, command, start)
     ev.use_command(spec, chosen)
     return None
+
+
+def held_start_sensitivity(ev: Evaluator, effects: tuple[Effect, ...]) -> Sensitivity:
+    """The final model's sensitivity, for its intervals: each parameter moved with the start held where
+    ``refine_start`` left it, and the start's three states as columns of their own (nuisances the
+    intervals are marginal over).  Moving a parameter with its start estimated afresh from the first
+    seconds (``joint.sensitivity``) compares two estimates of the start, the whole run's and the
+    window's, a step of 1e-3 apart in the parameter: their difference read as a steep slope and an
+    interval tens of times too narrow (draw 277: a backlash gap in [0.0562, 0.0564], the truth 0.044)."""
+    meas = ev.meas
+    command = ev.command_for(effects)
+    start = meas.x0(meas.spec(effects), command)
+    z0 = np.array(start.x0 if start.z is None else start.z, dtype=float)
+
+    def replayed(effs: tuple[Effect, ...], z: np.ndarray = z0) -> dict[str, np.ndarray]:
+        spec = meas.spec(effs)
+        sim = meas.run(start.with_z(z), replace(spec, I0=0.0), command)
+        return residuals(meas, replace(sim, current_measured=sim.current + spec.I0))
+
+    sens = sensitivity(ev, effects, replayed)
+    for i in range(3):
+        h = RELATIVE_STEP * STATE_SCALES[i]
+        r1 = replayed(effects, z0 + h * np.eye(3)[i])
+        sens.jac.append({s: (r1[s] - sens.r0[s]) / h for s in sens.r0})
+    return sens
