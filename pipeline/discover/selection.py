@@ -60,12 +60,14 @@ COUNTER_REFITS = 3          # after a reset: refits of the effects and the count
 # Discovery's work (``Evaluator.work``: its simulations, start estimates included, ~0.6 us of CPU a unit) is
 # bounded.  A round, a pair restart, each candidate of a round after the first and each of a thorough round
 # start only while a run of the rounds is within WORK_BUDGET (~6 s), and all the runs on one recording (the
-# runner-up's, after resettled switches) within TOTAL_WORK_BUDGET (~7.5 s); a later run starts only with
-# LATER_RUN_WORK of that left.  Counted, not timed: the same recording gets the same rounds, and so the
+# runner-up's, after resettled switches) within TOTAL_WORK_BUDGET (~7 s); a later run starts only with
+# LATER_RUN_WORK of that left (a round), the wide searches with WIDE_SEARCH_WORK (a pair restart or a
+# thorough round, each 2-4 M).  Counted, not timed: the same recording gets the same rounds, and so the
 # same answer, on a busy machine as on an idle one.
 WORK_BUDGET = 10_500_000
-TOTAL_WORK_BUDGET = 12_000_000
-LATER_RUN_WORK = 2_000_000
+TOTAL_WORK_BUDGET = 11_000_000
+LATER_RUN_WORK = 1_500_000
+WIDE_SEARCH_WORK = 3_000_000
 LATER_FULL_FITS = 4          # every candidate gets the full assessment in round 1; later rounds only the
                              # few that gain most in the coarse scan
 
@@ -165,7 +167,7 @@ def select(meas: Measurement, names: tuple[str, ...] | None = None) -> Selection
     if not meas.angle_reference_known:
         names = tuple(n for n in names if not only_a_constant_torque(meas, n))
     sel = _from_the_runner_up(_settled_and_selected(meas, names), names)
-    if sel.verdict != "unexplained" or not wide_searches(sel.meas) or sel.work > TOTAL_WORK_BUDGET - LATER_RUN_WORK:
+    if sel.verdict != "unexplained" or not wide_searches(sel.meas) or sel.work > TOTAL_WORK_BUDGET - WIDE_SEARCH_WORK:
         return sel
     # the wide searches last: from the effects of the run that left less structure
     return _less_structure(_forward(sel.meas, names, sel.effects, sel.rounds[:len(sel.effects)], spent=sel.work,

@@ -174,9 +174,9 @@ def discovery_json(d: Discovery, recording: str) -> dict:
                                 "its interval includes 'no effect', or, a sensor's zero, the other signals keep "
                                 "structure, and a plant the model gets wrong moves that sensor's mean too"}
     if d.selection.stopped_for_time:
-        out["stopped_for_time"] = ("a further round of candidates was not started: at the pace of the last "
-                                   "round it would have passed the work budget (simulated samples, start estimates included: "
-                                   "about 6 CPU s a run of the rounds, 7.5 s all runs on the recording)")
+        out["stopped_for_time"] = ("the work budget was spent before the search ended: a further round, or a "
+                                   "round's later candidates, were not tried (simulated samples, start estimates "
+                                   "included: about 6 CPU s a run of the rounds, 7 s all runs on the recording)")
     if d.selection.failures:
         out["simulation_failures"] = len(d.selection.failures)
     return finite_or_none(out)
