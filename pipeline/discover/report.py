@@ -94,7 +94,7 @@ def localisation_png(d: Discovery) -> bytes:
     """Residual RMS (noise standard deviations, log scale) by state bin and by lag after events,
     before and after: where the disagreement lives and whether the added effects removed it."""
     from matplotlib.figure import Figure
-    from matplotlib.ticker import MaxNLocator
+    from matplotlib.ticker import LogLocator, MaxNLocator
 
     keys = [k for k, rows in d.tables_before.items() if rows]
     n_rows = max(1, (len(keys) + 2) // 3)       # one (empty) row when no table has rows, e.g. a stuck timer
@@ -111,6 +111,7 @@ def localisation_png(d: Discovery) -> bytes:
                         ms=3, lw=1.0, label=f"{s} {label}")
         ax.axhline(1.0, color="0.5", lw=0.6)
         ax.set_yscale("log")
+        ax.yaxis.set_minor_locator(LogLocator(subs=(2.0, 5.0)))    # 2 and 5 per decade: a third of the ticks
         ax.yaxis.set_major_formatter(_plain_log_formatter())
         ax.yaxis.set_minor_formatter(_plain_log_formatter(labelOnlyBase=False))
         ax.set_title(key.replace("_", " "), fontsize=9, y=1.0)   # y given: no search for ticks above

@@ -85,7 +85,7 @@ class Selection:
     failures: list[str]                   # parameter sets the simulator refused (scored as infinitely bad)
     command_before: np.ndarray            # the command replayed for the base model ...
     command_after: np.ndarray             # ... and the final one (differ only in an inferred motor start)
-    stopped_for_time: bool                # a further round was not started (WORK_BUDGET, TOTAL_WORK_BUDGET)
+    stopped_for_time: bool                # the budget ended the search (WORK_BUDGET, TOTAL_WORK_BUDGET)
     work: int                             # what the rounds cost, all runs on the recording (Evaluator.work)
     pruned: list[str]                     # accepted in a round, dropped once later effects made them redundant
     intervals: list[tuple[float, float]]  # ~95 % interval of each final effect's parameter, all refitted jointly

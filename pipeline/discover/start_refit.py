@@ -23,6 +23,7 @@ import numpy as np
 from pipeline.discover.candidates import ONSET_SHIFTS, Evaluator
 from pipeline.discover.joint import Sensitivity, sensitivity
 from pipeline.discover.residuals import residuals
+from pipeline.errors import PdrError
 from pipeline.model.effects import Effect
 from pipeline.validate.initial_state import STATE_SCALES
 from pipeline.validate.start import Start
@@ -147,7 +148,10 @@ def held_start_sensitivity(ev: Evaluator, effects: tuple[Effect, ...]) -> Sensit
 
     def replayed(effs: tuple[Effect, ...], z: np.ndarray = z0) -> dict[str, np.ndarray]:
         spec = meas.spec(effs)
-        sim = meas.run(start.with_z(z), replace(spec, I0=0.0), command)
+        try:
+            sim = meas.run(start.with_z(z), replace(spec, I0=0.0), command)
+        except (RuntimeError, FloatingPointError, ValueError, PdrError):    # as the Evaluator scores it
+            return {s: np.full(meas.n, np.nan) for s in meas.signals}
         return residuals(meas, replace(sim, current_measured=sim.current + spec.I0))
 
     sens = sensitivity(ev, effects, replayed)
