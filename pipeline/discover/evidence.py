@@ -155,8 +155,8 @@ def assess(ev: Evaluator, meas: Measurement, effects: tuple[Effect, ...], name: 
     nll_before = ev.nll(ev.sim(effects))
     delta_bic = 2.0 * (fit.nll - nll_before) + 1.0 * np.log(n_obs)
     share, gains, worse = heldout_share(fit, ev.floor, meas.n)
-    left = sum(max(fit.heldout_mse_after[s] / fl - 1.0, 0.0) for s, fl in ev.floor.items())
-    before = sum(max(fit.heldout_mse_before[s] / fl - 1.0, 0.0) for s, fl in ev.floor.items())
+    ex_b, ex_a = heldout_excess(fit, ev.floor)
+    left, before = (sum(max(x, 0.0) for x in ex.values()) for ex in (ex_a, ex_b))
     sig_b = signature_energy(name, meas, ev, effects)
     sig_a = signature_energy(name, meas, ev, trial)
     a = Assessment(fit=fit, round=round_, delta_bic=float(delta_bic), heldout_share=share,
@@ -187,11 +187,8 @@ def worsens(fit: Fit, floor: dict[str, float]) -> bool:
     variances and ``MAX_WORSENING_SHARE`` of the structure it had: a sensor offset moves the start
     the first seconds give, and with it an angle still far from its floor (after a reset, 146 noise
     variances) by a few, where it removes 2.5 of the current's."""
-    for s, fl in floor.items():
-        before, after = fit.heldout_mse_before[s] / fl - 1.0, fit.heldout_mse_after[s] / fl - 1.0
-        if after - before > max(MAX_WORSENING_FLOORS, MAX_WORSENING_SHARE * before):
-            return True
-    return False
+    ex_b, ex_a = heldout_excess(fit, floor)
+    return any(ex_a[s] - ex_b[s] > max(MAX_WORSENING_FLOORS, MAX_WORSENING_SHARE * ex_b[s]) for s in floor)
 
 
 def beyond_zero_error(fit: Fit, meas: Measurement, floor: dict[str, float]) -> bool:
@@ -226,6 +223,12 @@ def floor_error(signal: str, n: int) -> float:
     return FLOOR_SIGMAS * float(np.sqrt(FLOOR_RELATIVE_VARIANCE / max(n, 1)))
 
 
+def heldout_excess(fit: Fit, floor: dict[str, float]) -> tuple[dict[str, float], dict[str, float]]:
+    """Held-out MSE above the noise floor per signal, in noise variances: before the candidate, after it."""
+    return ({s: fit.heldout_mse_before[s] / fl - 1.0 for s, fl in floor.items()},
+            {s: fit.heldout_mse_after[s] / fl - 1.0 for s, fl in floor.items()})
+
+
 def heldout_share(fit: Fit, floor: dict[str, float], n: int) -> tuple[float, dict[str, float], float]:
     """(share of held-out structure removed, MSE gain per signal in noise variances, worst worsening).
 
@@ -235,8 +238,7 @@ def heldout_share(fit: Fit, floor: dict[str, float], n: int) -> tuple[float, dic
     a sensor offset in the current), 0 when there is nothing to explain.  Of a candidate that moves
     the current alone, the structure the floor's own error may hold (``floor_error``) is not asked.
     """
-    ex_b = {s: fit.heldout_mse_before[s] / fl - 1.0 for s, fl in floor.items()}
-    ex_a = {s: fit.heldout_mse_after[s] / fl - 1.0 for s, fl in floor.items()}
+    ex_b, ex_a = heldout_excess(fit, floor)
     gains = {s: ex_b[s] - ex_a[s] for s in floor}
     structured = [s for s in floor if ex_b[s] >= min_gain(s, n)]
 

@@ -39,7 +39,7 @@ from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
-from pipeline.discover.candidates import Evaluator, folds_by_cycle, parameter_of, prune, scan
+from pipeline.discover.candidates import Evaluator, folds_by_cycle, prune, scan
 from pipeline.discover.evidence import (MAX_DELTA_BIC, STRUCTURE_FLOORS, Assessment, Screened, assess, min_gain,
                                          nameable_size)
 from pipeline.discover.joint import effect_intervals, joint_fit, sensitivity
@@ -362,45 +362,3 @@ def _near_tie(round_: int, best: Assessment, assessed: list[Assessment]) -> dict
             "heldout_nll_gain": {best.fit.name: best.fit.heldout_nll_gain,
                                  runner.fit.name: runner.fit.heldout_nll_gain},
             "runner_up_accepted": bool(runner.accepted)}
-
-
-def check_declared(meas: Measurement, floor: dict[str, float]) -> list[dict]:
-    """When nothing can be added, is something the rig declares too large?
-
-    Effects only add, so an over-declared effect (a TOML loop delay the rig does not have,
-    a friction smaller than written) cannot be "found".  Each declared effect, and the
-    [model] friction b, is refitted between none and its declared value; the ones that
-    then leave the residual at the noise are reported (``pdr discover`` never edits them).
-    """
-    from dataclasses import replace as dc_replace
-
-    from scipy.optimize import minimize_scalar
-
-    from pipeline.discover.candidates import make, value_of
-
-    cfg = meas.config
-    declared: list[tuple[str, str, float]] = [(e.name, parameter_of(e.name), value_of(e)) for e in cfg.effects]
-    if cfg.model.b > 0:
-        declared.append(("model.b", "b", cfg.model.b))
-    out = []
-    for name, param, value in declared:
-        absent = 0.0 if name == "model.b" else CATALOGUE[name].PARAMS[0].absent
-
-        def with_value(v: float, name=name):
-            if name == "model.b":
-                return dc_replace(cfg, model=cfg.model.with_(b=v))
-            return dc_replace(cfg, effects=tuple(make(e.name, v) if e.name == name else e for e in cfg.effects))
-
-        def loss(v: float) -> float:
-            trial = dc_replace(meas, config=with_value(v))
-            return Evaluator(trial, floor).nll(trial.replay(trial.spec()))
-
-        res = minimize_scalar(loss, bounds=(min(absent, value), max(absent, value)), method="bounded",
-                              options={"xatol": 1e-3 * abs(value - absent), "maxiter": 20})
-        trial = dc_replace(meas, config=with_value(float(res.x)))
-        ev = Evaluator(trial, floor)
-        left = {s: m / floor[s] - 1.0 for s, m in ev.mse(trial.replay(trial.spec())).items()}
-        if max(left.values()) <= STRUCTURE_FLOORS:
-            out.append({"name": name, "parameter": param, "declared": value, "fitted": float(res.x),
-                        "structure_left": left})
-    return out

@@ -17,7 +17,8 @@ import pandas as pd
 from pipeline.config import RigConfig, effects_toml_snippet
 from pipeline.discover.measurement import Measurement, measurement_from_kinematics
 from pipeline.discover.residuals import binned, describe, signatures
-from pipeline.discover.selection import Selection, check_declared, select
+from pipeline.discover.declared import check_declared
+from pipeline.discover.selection import Selection, select
 from pipeline.model.effects import Effect
 from pipeline.model.simulate import SimResult
 from pipeline.runs import RunPaths, ingest_segment, load_config
@@ -40,7 +41,7 @@ class Discovery:
     tables_before: dict[str, list[dict]]      # residual RMS binned in state / aligned on events (replay)
     tables_after: dict[str, list[dict]]
     seconds: float
-    declared_too_large: list[dict] = field(default_factory=list)   # see selection.check_declared
+    declared_too_large: list[dict] = field(default_factory=list)   # see declared.check_declared
 
     @property
     def effects(self) -> tuple[Effect, ...]:

@@ -54,6 +54,23 @@ def test_declaration_is_complete(name):
     assert stacked == pytest.approx(combined, rel=1e-12)               # stacking is what combining says
 
 
+
+@pytest.mark.parametrize("name", NAMES)
+def test_the_scan_reaches_down_to_the_smallest_nameable_size(name):
+    """Discovery scans only so many points, each a replay and a start estimate; a scan starting far above the
+    smallest size it may name (``evidence.MIN_SIZE_SHARE`` of the typical) would bracket such an effect
+    between "absent" and a point many times its size.  On each side of "absent" the bounds allow, the
+    nearest point is within 2.5 times that size."""
+    from pipeline.discover.evidence import MIN_SIZE_SHARE
+
+    p = CATALOGUE[name].PARAMS[0]
+    smallest = MIN_SIZE_SHARE * abs(p.typical - p.absent)
+    offsets = np.array(p.scan) - p.absent
+    for side, room in ((1.0, p.bounds[1] - p.absent), (-1.0, p.absent - p.bounds[0])):
+        if room > 0:
+            nearest = np.min(side * offsets[side * offsets > 0])
+            assert nearest <= 2.5 * smallest, (side, nearest, smallest)
+
 @pytest.mark.skipif(not MODEL_MD.is_file(), reason="shared/MODEL.md is not beside this checkout")
 @pytest.mark.parametrize("name", NAMES)
 def test_model_md_names_it_with_its_parameters(name):
