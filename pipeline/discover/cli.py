@@ -70,7 +70,7 @@ def discover(
     import tempfile
 
     from pipeline.discover.adopt import adopt as adopt_effects
-    from pipeline.discover.drawing import Drawer, second_process
+    from pipeline.discover.second_process import SecondProcess, use_second_process
     from pipeline.discover.report import dumps, write_outputs
     from pipeline.discover.stage import augmented_effects, discover_run, segment_to_discover
     from pipeline.errors import PdrError
@@ -84,15 +84,11 @@ def discover(
         return
     recording = recordings[0]
     item = Path(recording)
-    # the figures' and the .rrd's imports and drawing overlap the decision (drawing.second_process)
-    with Drawer(background=second_process()) as drawer, tempfile.TemporaryDirectory(prefix="pdr-discover-") as tmp:
+    # ingesting overlaps numba's set-up, drawing's imports the decision (second_process)
+    with SecondProcess(background=use_second_process()) as second, \
+            tempfile.TemporaryDirectory(prefix="pdr-discover-") as tmp:
         if item.suffix.lower() == ".csv" and item.is_file():
-            from pipeline.derive.stage import derive_run
-            from pipeline.ingest.stage import ingest_recording
-
-            runs = ingest_recording(item, Path(tmp)).runs
-            for paths in runs:
-                derive_run(paths)
+            runs = second.ingest(item, Path(tmp))
             source_csv: Path | None = item
         else:
             runs = resolve_runs(recording, processed)
@@ -106,7 +102,7 @@ def discover(
             doc["segments"] = {"used": paths.name, "others": [p.name for p in runs if p != paths]}
         root = processed if item.suffix.lower() == ".csv" or not item.is_dir() else item.parent
         out_dir = out if out is not None else Path(root) / DISCOVERY_DIR / paths.name
-        written = write_outputs(out_dir, d, doc, rrd=not no_rrd, drawer=drawer)
+        written = write_outputs(out_dir, d, doc, rrd=not no_rrd, drawer=second)
     if adopt:
         if not d.effects:
             doc["adopted"] = None

@@ -276,7 +276,7 @@ def _tables_md(d: Discovery) -> list[str]:
 
 def write_outputs(out_dir: Path, d: Discovery, doc: dict, *, rrd: bool = True, drawer=None) -> dict[str, Path]:
     """Every output of one discovery into ``out_dir`` (atomic writes); returns the paths.  The
-    figures and the .rrd are drawn by ``drawer`` (``drawing.Drawer``: perhaps in a second process)."""
+    figures and the .rrd are drawn by ``drawer`` (``second_process.SecondProcess``)."""
     out_dir = Path(out_dir)
     paths = {k: out_dir / v for k, v in FILES.items()}
     write_json(paths["json"], doc)
