@@ -158,18 +158,30 @@ def outcomes(d: Discovery) -> list[str]:
     """Per candidate of every round (``discovery_json``'s order): what became of it.
 
     Several candidates of a round can pass every check; the round adopts the first
-    of them (the best held-out gain), the others are "passed, not chosen".
+    of them (the best held-out gain), the others are "passed, not chosen".  A later run
+    that starts from round one's runner-up (``selection._from_the_runner_up``) adopts it
+    without a round choosing it: a final effect no round chose is credited to the first
+    candidate of its name that passed.
     """
     final = {e.name for e in d.effects}
+    name_of = [[a.fit.name if hasattr(a, "fit") else a.name for a in rnd] for rnd in d.selection.rounds]
+    chosen = [next((i for i, a in enumerate(rnd) if a.accepted), None) for rnd in d.selection.rounds]
+    credited = {names[i] for names, i in zip(name_of, chosen) if i is not None} & final
+    started = {}                                # final effects no round chose: where they first passed
+    for r, rnd in enumerate(d.selection.rounds):
+        for i, a in enumerate(rnd):
+            if getattr(a, "accepted", False) and name_of[r][i] in final - credited:
+                started.setdefault(name_of[r][i], (r, i))
     out = []
-    for rnd in d.selection.rounds:
-        chosen = next((a for a in rnd if a.accepted), None)
-        for a in rnd:
-            name = a.fit.name if hasattr(a, "fit") else a.name
+    for r, rnd in enumerate(d.selection.rounds):
+        for i, a in enumerate(rnd):
+            name = name_of[r][i]
             if not hasattr(a, "fit"):
                 out.append("screened out")
-            elif a is chosen:
+            elif i == chosen[r]:
                 out.append("adopted" if name in final else "adopted, later pruned")
+            elif started.get(name) == (r, i):
+                out.append("adopted")
             else:
                 out.append("passed, not chosen" if a.accepted else "rejected")
     return out

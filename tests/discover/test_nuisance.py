@@ -114,9 +114,10 @@ def test_a_hot_winding_is_not_named_as_a_slightly_stiffer_spring(tmp_path):
     assert abs(spring["parameters"]["k_scale"] - 1.0) < 0.03 and not spring["checks"]["size"]
 
 
-def _randomised(index: int, tmp_path, after_reset: bool = False) -> tuple:
+def _randomised(index: int, tmp_path, after_reset: bool = False, discovery: bool = False) -> tuple:
     """Randomised draw ``index`` (seed 15) through CSV, ingest, derive and discovery of the segment
-    ``pdr discover`` takes (``after_reset``: of the last, which follows a board reset)."""
+    ``pdr discover`` takes (``after_reset``: of the last, which follows a board reset); (draw, JSON),
+    and the ``Discovery`` too when ``discovery``."""
     import numpy as np
 
     from pipeline.derive.stage import derive_run
@@ -133,8 +134,8 @@ def _randomised(index: int, tmp_path, after_reset: bool = False) -> tuple:
         derive_run(paths)
     if after_reset:
         assert len(runs) > 1 and after_board_reset(ingest_segment(runs[-1]))
-    _, doc = discover_run(runs[-1] if after_reset else segment_to_discover(runs))
-    return draw, doc
+    d, doc = discover_run(runs[-1] if after_reset else segment_to_discover(runs))
+    return (draw, doc, d) if discovery else (draw, doc)
 
 
 def _named_right(draw, doc) -> None:
@@ -179,8 +180,15 @@ def test_an_effect_the_later_ones_made_redundant_frees_a_round(tmp_path):
 def test_rounds_that_leave_structure_are_run_again_from_round_ones_runner_up(tmp_path):
     """Randomised draw 275 (seed 15): viscous friction beside softer springs (k 0.87).  Round one took
     Coulomb friction, which fits best alone, then a loop delay, and left the recording unexplained;
-    from round one's runner-up (viscous friction) the springs open in round two."""
-    _named_right(*_randomised(275, tmp_path))
+    from round one's runner-up (viscous friction) the springs open in round two.  The report credits
+    the runner-up, which no round chose, as adopted in round one."""
+    from pipeline.discover.report import outcomes
+
+    draw, doc, d = _randomised(275, tmp_path, discovery=True)
+    _named_right(draw, doc)
+    fates = outcomes(d)
+    adopted = [(c["round"], c["name"]) for c, fate in zip(doc["candidates"], fates) if fate == "adopted"]
+    assert sorted(adopted) == [(1, "viscous_friction"), (2, "spring_stiffness")], adopted
 
 
 def test_an_adopted_effect_is_tried_against_candidates_an_earlier_round_passed(tmp_path):
