@@ -39,7 +39,7 @@ from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
-from pipeline.discover.candidates import Evaluator, folds_by_cycle, prune, scan
+from pipeline.discover.candidates import Evaluator, Fit, folds_by_cycle, prune, scan
 from pipeline.discover.evidence import (MAX_DELTA_BIC, STRUCTURE_FLOORS, Assessment, Screened, assess, min_gain,
                                          nameable_size)
 from pipeline.discover.joint import effect_intervals, joint_fit, sensitivity
@@ -57,15 +57,17 @@ from pipeline.model.effects import CATALOGUE, Effect
 NEAR_TIE = 2.0              # runner-up leaves at most twice the winner's held-out structure (+1 noise variance)
 MAX_EFFECTS = 3
 COUNTER_REFITS = 3          # after a reset: refits of the effects and the counter's offset, in turn, at the end
+EDGE_TOLERANCE = 1e-3       # of a scan's range: a value this near its end is at the edge (Brent stops within 5e-4)
 # Discovery's work (``Evaluator.work``: its simulations, start estimates included, ~0.6 us of CPU a unit) is
-# bounded.  A round, a pair restart, each candidate of a round after the first and each of a thorough round
-# start only while a run of the rounds is within WORK_BUDGET (~6 s), and all the runs on one recording (the
-# runner-up's, after resettled switches) within TOTAL_WORK_BUDGET (~7 s); a later run starts only with
+# bounded.  A round, a pair restart, each candidate of a round after the first, each of a thorough round and
+# each twin swap start only while a run of the rounds is within WORK_BUDGET, and all the runs on one recording
+# (from round one's two best, after resettled switches) within TOTAL_WORK_BUDGET (both ~6 s; 7 s where
+# Coulomb friction sticks often, its replays locating many events); a later run starts only with
 # LATER_RUN_WORK of that left (a round), the wide searches with WIDE_SEARCH_WORK (a pair restart or a
 # thorough round, each 2-4 M).  Counted, not timed: the same recording gets the same rounds, and so the
 # same answer, on a busy machine as on an idle one.
-WORK_BUDGET = 10_500_000
-TOTAL_WORK_BUDGET = 11_000_000
+WORK_BUDGET = 9_500_000
+TOTAL_WORK_BUDGET = 9_500_000
 LATER_RUN_WORK = 1_500_000
 WIDE_SEARCH_WORK = 3_000_000
 LATER_FULL_FITS = 4          # every candidate gets the full assessment in round 1; later rounds only the
@@ -102,8 +104,8 @@ def only_a_constant_torque(meas: Measurement, name: str) -> bool:
 
 
 def wide_searches(meas: Measurement) -> bool:
-    """Whether the searches beyond the rounds (the thorough round, the pair restart, the runner-up's
-    rounds) may run: only where the angle's zero is known.  After a board reset the start and the
+    """Whether the searches beyond the rounds (the thorough round, the pair restart, the rounds from
+    round one's two best) may run: only where the angle's zero is known.  After a board reset the start and the
     counter's zero are fitted per model, so each of their many trial models costs several times what
     ``Evaluator.work`` counts (the budget would not bound them), and the structure left there is the
     reset's nuisances (``start_refit``, ``measurement``) more often than a missing effect."""
@@ -115,13 +117,14 @@ def excess(ev: Evaluator, effects: tuple[Effect, ...]) -> dict[str, float]:
 
 
 def swap_twins(ev: Evaluator, effects: tuple[Effect, ...],
-               rounds: list[list[Assessment | Screened]]) -> tuple[Effect, ...]:
+               rounds: list[list[Assessment | Screened]], budget: float = float("inf")) -> tuple[Effect, ...]:
     """Each adopted effect against the candidates that also passed every check in its round or an
     earlier one (a later round assesses only the few its scan ranks first), with the effects adopted
     later now beside them: a round picks among near-twins (a softer spring and a
     heavier rack both slow the oscillation) before the later effects are known, and the choice is
     right only once they are.  A twin replaces the effect when, all refitted jointly, it fits every
-    sample better by half ``MAX_DELTA_BIC`` (equal parameter counts: the likelihoods compare)."""
+    sample better by half ``MAX_DELTA_BIC`` (equal parameter counts: the likelihoods compare).  Each
+    trial (a joint fit, ~0.3 M of work) starts only while ``ev.work`` is within ``budget``."""
     nll = ev.nll(ev.sim(effects))
     for r, rnd in enumerate(rounds):
         adopted = next((a.fit.name for a in rnd if a.accepted and a.fit.name in {e.name for e in effects}), None)
@@ -129,6 +132,8 @@ def swap_twins(ev: Evaluator, effects: tuple[Effect, ...],
             continue
         passed = {a.fit.name: a for earlier in rounds[:r + 1] for a in earlier if a.accepted}
         for twin in (a for a in passed.values() if a.fit.name not in {e.name for e in effects}):
+            if ev.work > budget:
+                return effects
             i = next(k for k, e in enumerate(effects) if e.name == adopted)
             trial = joint_fit(ev, (*effects[:i], twin.fit.effect, *effects[i + 1:]))
             trial_nll = ev.nll(ev.sim(trial))
@@ -160,7 +165,7 @@ def select(meas: Measurement, names: tuple[str, ...] | None = None) -> Selection
     next effect.  The run that leaves less structure is kept.
 
     Cheapest first, all within one work budget (``TOTAL_WORK_BUDGET``): plain rounds; when they leave
-    structure, plain rounds from round one's runner-up (``_from_the_runner_up``); when the better of
+    structure, plain rounds from round one's two best together (``_from_the_runner_up``); when the better of
     those still leaves some, the wide searches (a thorough round when a round adopts nothing, a pair
     restart: ``thorough``) from its effects, on the switches as finally settled."""
     names = tuple(CATALOGUE) if names is None else names
@@ -194,16 +199,19 @@ def _less_structure(a: Selection, b: Selection) -> Selection:
 
 
 def _from_the_runner_up(sel: Selection, names: tuple[str, ...]) -> Selection:
-    """When the rounds leave structure, the rounds again from round one's runner-up (if it passed every
-    rule), and the run that leaves less structure is kept.  Round one picks among near-twins (Coulomb
-    or viscous friction, a voltage drop or viscous friction) before the others are known: the wrong
-    twin fits best alone, then no second effect opens beside it (``wide_searches`` only)."""
+    """When the rounds leave structure, the rounds again from round one's winner and runner-up together
+    (if both passed every rule), and the run that leaves less structure is kept.  Round one picks among
+    near-twins (Coulomb or viscous friction, a voltage drop or viscous friction) before the others are
+    known: the wrong twin fits best alone, then no second effect opens beside it; or both are there, and
+    either alone hides the other.  Refitted together, a twin that is not there shrinks to nothing and
+    is pruned (``wide_searches`` only)."""
     if sel.verdict != "unexplained" or not sel.effects or not sel.rounds or not wide_searches(sel.meas):
         return sel
     passed = [a for a in sel.rounds[0] if isinstance(a, Assessment) and a.accepted]
     if len(passed) < 2 or sel.work > TOTAL_WORK_BUDGET - LATER_RUN_WORK:
         return sel
-    return _less_structure(_forward(sel.meas, names, (passed[1].fit.effect,), sel.rounds[:1], spent=sel.work), sel)
+    twins = (passed[0].fit.effect, passed[1].fit.effect)
+    return _less_structure(_forward(sel.meas, names, twins, sel.rounds[:1], spent=sel.work), sel)
 
 
 def _settled(meas: Measurement, effects: tuple[Effect, ...]) -> Measurement:
@@ -255,7 +263,7 @@ def _forward(meas: Measurement, names: tuple[str, ...], found: tuple[Effect, ...
             if pair is not None:
                 effects = pair
                 continue
-        effects = swap_twins(ev, effects, rounds)
+        effects = swap_twins(ev, effects, rounds, budget)
         adopted |= {e.name for e in effects}
         kept = prune(ev, effects)
         while small := [e for e in kept if not nameable_size(e.name, e.value)]:
@@ -339,7 +347,7 @@ def _round(ev: Evaluator, meas: Measurement, effects: tuple[Effect, ...], remain
         if scan_gain[n] > 0 and (not assessed or ev.work <= budget):
             assessed.append(assess(ev, meas, effects, n, folds, round_, scans[n]))
     full = {a.fit.name for a in assessed}
-    assessed.sort(key=lambda a: -a.fit.heldout_nll_gain)
+    assessed.sort(key=lambda a: (at_scan_edge(a.fit), -a.fit.heldout_nll_gain))
     screened = [Screened(n, round_, float(scans[n].grid[np.argmin(scans[n].nll)]), scan_gain[n])
                 for n in order if n not in full]
     if (wide and not any(a.accepted for a in assessed) and effects and wide_searches(meas)
@@ -349,6 +357,17 @@ def _round(ev: Evaluator, meas: Measurement, effects: tuple[Effect, ...], remain
         assessed = [a for a in redone if isinstance(a, Assessment)]
         screened = [a for a in redone if not isinstance(a, Assessment)]
     return assessed, screened
+
+
+def at_scan_edge(fit: Fit) -> bool:
+    """Whether the candidate's value came out at the far end of its scan (either end, for a signed one),
+    where the likelihood was still rising: the effect stretched to mimic others, not sized by its own
+    shape.  Such a candidate goes after every one fitted inside its range (draw 195: a 0.3 s loop delay,
+    the scan's end, stood in for friction and softer springs, and hid them for the rest of the run)."""
+    p = fit.effect.PARAMS[0]
+    lo, hi = min(p.scan), max(p.scan)
+    tol = EDGE_TOLERANCE * (hi - lo)
+    return fit.value >= hi - tol or (p.signed and fit.value <= lo + tol)
 
 
 def _near_tie(round_: int, best: Assessment, assessed: list[Assessment]) -> dict | None:

@@ -88,3 +88,21 @@ def test_an_evaluators_work_counts_the_start_estimates_of_the_models_it_replays(
     again = ev.work
     ev.sim(coulomb)                                     # remembered: nothing more to pay
     assert ev.work == again
+
+
+def test_a_value_at_the_far_end_of_its_scan_is_at_the_edge_either_end_for_a_signed_one():
+    from pipeline.discover.candidates import Fit
+    from pipeline.discover.selection import at_scan_edge
+    from pipeline.model.effects import CATALOGUE
+
+    def fit(name: str, value: float) -> Fit:
+        p = CATALOGUE[name].PARAMS[0]
+        return Fit(name=name, parameter=p.name, value=value, nll=0.0, interval=(value, value), fold_values=())
+
+    top = max(CATALOGUE["loop_delay"].PARAMS[0].scan)
+    assert at_scan_edge(fit("loop_delay", top)) and at_scan_edge(fit("loop_delay", top * (1 - 1e-4)))
+    assert not at_scan_edge(fit("loop_delay", 0.9 * top)) and not at_scan_edge(fit("loop_delay", 0.0))
+    offset = CATALOGUE["current_sensor_offset"].PARAMS[0]
+    assert offset.signed
+    assert at_scan_edge(fit("current_sensor_offset", min(offset.scan)))
+    assert not at_scan_edge(fit("current_sensor_offset", 0.5 * min(offset.scan)))
