@@ -298,8 +298,10 @@ def _column(kin: pd.DataFrame, name: str) -> np.ndarray | None:
 
 def measurement_from_kinematics(kin: pd.DataFrame, config: RigConfig, name: str,
                                 angle_reference_known: bool = True,
-                                zero_samples: dict[str, int] | None = None) -> Measurement:
-    """Arrays for fitting from a kinematics table; refuses tables discovery cannot use."""
+                                zero_samples: dict[str, int] | None = None,
+                                max_samples: int = MAX_SAMPLES) -> Measurement:
+    """Arrays for fitting from the first ``max_samples`` rows of a kinematics table; refuses tables
+    discovery cannot use."""
     if "t_s" in kin.columns and "theta_rad" not in kin.columns:
         raise PdrError("discovery needs the angle: this recording has no encoder column (columns.counts = \"\"), "
                        "and the catalogued effects are told apart by their fingerprints in the angle and velocity"
@@ -309,7 +311,7 @@ def measurement_from_kinematics(kin: pd.DataFrame, config: RigConfig, name: str,
         if col not in kin.columns:
             raise PdrError(f"kinematics table lacks column '{col}', which discovery needs", path=name)
     total = len(kin)
-    kin = kin.iloc[:MAX_SAMPLES].reset_index(drop=True)
+    kin = kin.iloc[:max_samples].reset_index(drop=True)
     if len(kin) < 20:
         raise PdrError(f"only {len(kin)} samples; discovery needs at least 20 to fit and hold out", path=name)
     t = _column(kin, "t_s")

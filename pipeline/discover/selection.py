@@ -92,6 +92,7 @@ class Selection:
     pruned: list[str]                     # accepted in a round, dropped once later effects made them redundant
     intervals: list[tuple[float, float]]  # ~95 % interval of each final effect's parameter, all refitted jointly
     meas: Measurement                     # the measurement fitted (inferred switches settled)
+    refit_samples: int = 0                # samples the effects were refitted on after the search, if more (``longer``)
 
 
 def only_a_constant_torque(meas: Measurement, name: str) -> bool:

@@ -18,6 +18,7 @@ from pipeline.config import RigConfig, effects_toml_snippet
 from pipeline.discover.measurement import Measurement, measurement_from_kinematics
 from pipeline.discover.residuals import binned, describe, signatures
 from pipeline.discover.declared import check_declared
+from pipeline.discover.longer import refit_on_more_samples
 from pipeline.discover.selection import Selection, select
 from pipeline.model.effects import Effect
 from pipeline.model.simulate import SimResult
@@ -74,6 +75,7 @@ def discover(kin: pd.DataFrame, config: RigConfig, name: str, after_reset: bool 
     t0 = time.perf_counter()
     sel = select(measurement_from_kinematics(kin, config, name, angle_reference_known=not after_reset,
                                              zero_samples=zero_samples))
+    sel = refit_on_more_samples(sel, kin, config, name, zero_samples)
     meas = sel.meas
     base = meas.simulate_ways(meas.spec(), sel.command_before)
     final = meas.simulate_ways(meas.spec(sel.effects), sel.command_after) if sel.effects else base
@@ -161,7 +163,8 @@ def discovery_json(d: Discovery, recording: str) -> dict:
                                 "unit": "residual RMS in noise standard deviations (1 = at the noise floor)"},
         "effects_toml": effects_toml_snippet(augmented_effects(d)) if d.effects else "",
         "dir_source": d.meas.dir_source,
-        "samples": {"used": d.meas.n, "in_recording": d.meas.samples_in_recording},
+        "samples": {"used": d.meas.n, "in_recording": d.meas.samples_in_recording,
+                    "values_refitted_on": sel.refit_samples or d.meas.n},
         "motor_start_shift_samples": _onset_shift(d),
         "simulations": sel.simulations,
         "work": sel.work,                  # simulated samples, start estimates included (selection.WORK_BUDGET)
