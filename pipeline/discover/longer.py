@@ -50,5 +50,6 @@ def refit_on_more_samples(sel: Selection, kin: pd.DataFrame, config: RigConfig, 
         return replace(sel, work=sel.work + ev.work + on_window.work)
     refine_start(ev, effects)
     spans = effect_intervals(held_start_sensitivity(ev, effects), effects)
-    return replace(sel, effects=effects, intervals=spans, excess_after=left, command_after=on_window.command_for(effects),
-                   work=sel.work + ev.work + on_window.work, refit_samples=longer.n)
+    return replace(sel, effects=effects, intervals=spans, excess_after=left,
+                   command_after=on_window.command_for(effects), work=sel.work + ev.work + on_window.work,
+                   refit_samples=longer.n)

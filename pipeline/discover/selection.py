@@ -166,13 +166,13 @@ def select(meas: Measurement, names: tuple[str, ...] | None = None) -> Selection
     next effect.  The run that leaves less structure is kept.
 
     Cheapest first, all within one work budget (``TOTAL_WORK_BUDGET``): plain rounds; when they leave
-    structure, plain rounds from round one's two best together (``_from_the_runner_up``); when the better of
+    structure, plain rounds from round one's two best together (``_from_round_ones_two_best``); when the better of
     those still leaves some, the wide searches (a thorough round when a round adopts nothing, a pair
     restart: ``thorough``) from its effects, on the switches as finally settled."""
     names = tuple(CATALOGUE) if names is None else names
     if not meas.angle_reference_known:
         names = tuple(n for n in names if not only_a_constant_torque(meas, n))
-    sel = _from_the_runner_up(_settled_and_selected(meas, names), names)
+    sel = _from_round_ones_two_best(_settled_and_selected(meas, names), names)
     if sel.verdict != "unexplained" or not wide_searches(sel.meas) or sel.work > TOTAL_WORK_BUDGET - WIDE_SEARCH_WORK:
         return sel
     # the wide searches last: from the effects of the run that left less structure
@@ -199,7 +199,7 @@ def _less_structure(a: Selection, b: Selection) -> Selection:
     return replace(kept, work=max(a.work, b.work))
 
 
-def _from_the_runner_up(sel: Selection, names: tuple[str, ...]) -> Selection:
+def _from_round_ones_two_best(sel: Selection, names: tuple[str, ...]) -> Selection:
     """When the rounds leave structure, the rounds again from round one's winner and runner-up together
     (if both passed every rule), and the run that leaves less structure is kept.  Round one picks among
     near-twins (Coulomb or viscous friction, a voltage drop or viscous friction) before the others are
