@@ -43,6 +43,7 @@ STRUCTURE_FLOORS = 25.0      # residual MSE above this many noise variances is s
 # from rest readings) must stand this many of that zero's standard errors clear of it, or the zero's
 # own error explains it as well (by chance a zero is 3 standard errors off once in ~370 recordings)
 ZERO_SIGMAS = 3.0
+EDGE_TOLERANCE = 1e-3        # of a scan's range: a value this near its end is at the edge (Brent stops within 5e-4)
 MIN_SIZE_SHARE = 0.1         # smallest nameable effect, as a share of its typical size (MODEL.md's catalogue)
 
 
@@ -202,6 +203,23 @@ def beyond_zero_error(fit: Fit, meas: Measurement, floor: dict[str, float]) -> b
     if not rest or p.zero_of not in floor:
         return True
     return abs(fit.value - p.absent) > ZERO_SIGMAS * float(np.sqrt(floor[p.zero_of] / rest))
+
+
+def at_scan_edge(fit: Fit) -> bool:
+    """Whether the candidate's value came out at the far end of its scan (either end, for a signed one),
+    where the likelihood was still rising: the effect stretched to mimic others, not sized by its own
+    shape.  Such a candidate goes after every one fitted inside its range (draw 195: a 0.3 s loop delay,
+    the scan's end, stood in for friction and softer springs, and hid them for the rest of the run)."""
+    p = fit.effect.PARAMS[0]
+    lo, hi = min(p.scan), max(p.scan)
+    tol = EDGE_TOLERANCE * (hi - lo)
+    return fit.value >= hi - tol or (p.signed and fit.value <= lo + tol)
+
+
+def adoption_rank(a: Assessment) -> tuple[bool, float]:
+    """The order a round (plain or thorough) adopts from among the candidates that pass: those fitted inside
+    their scan first (``at_scan_edge``), then by held-out likelihood gain."""
+    return at_scan_edge(a.fit), -a.fit.heldout_nll_gain
 
 
 def nameable_size(name: str, value: float) -> bool:

@@ -158,7 +158,7 @@ def outcomes(d: Discovery) -> list[str]:
     """Per candidate of every round (``discovery_json``'s order): what became of it.
 
     Several candidates of a round can pass every check; the round adopts the first
-    of them (the best held-out gain), the others are "passed, not chosen".  A later run
+    of them (``evidence.adoption_rank``), the others are "passed, not chosen".  A later run
     that starts from round one's two best (``selection._from_round_ones_two_best``) adopts the second
     without a round choosing it: a final effect no round chose is credited to the first
     candidate of its name that passed.

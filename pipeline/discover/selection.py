@@ -39,9 +39,9 @@ from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
-from pipeline.discover.candidates import Evaluator, Fit, folds_by_cycle, prune, scan
-from pipeline.discover.evidence import (MAX_DELTA_BIC, STRUCTURE_FLOORS, Assessment, Screened, assess, min_gain,
-                                         nameable_size)
+from pipeline.discover.candidates import Evaluator, folds_by_cycle, prune, scan
+from pipeline.discover.evidence import (MAX_DELTA_BIC, STRUCTURE_FLOORS, Assessment, Screened, adoption_rank,
+                                         assess, min_gain, nameable_size)
 from pipeline.discover.joint import effect_intervals, joint_fit, sensitivity
 from pipeline.discover.measurement import Measurement, ambiguous_switches, settle_switches
 from pipeline.discover.residuals import noise_floor
@@ -57,7 +57,6 @@ from pipeline.model.effects import CATALOGUE, Effect
 NEAR_TIE = 2.0              # runner-up leaves at most twice the winner's held-out structure (+1 noise variance)
 MAX_EFFECTS = 3
 COUNTER_REFITS = 3          # after a reset: refits of the effects and the counter's offset, in turn, at the end
-EDGE_TOLERANCE = 1e-3       # of a scan's range: a value this near its end is at the edge (Brent stops within 5e-4)
 # Discovery's work (``Evaluator.work``: its simulations, start estimates included, ~0.6 us of CPU a unit) is
 # bounded.  A round, a pair restart, each candidate of a round after the first, each of a thorough round and
 # each twin swap start only while a run of the rounds is within WORK_BUDGET, and all the runs on one recording
@@ -348,7 +347,7 @@ def _round(ev: Evaluator, meas: Measurement, effects: tuple[Effect, ...], remain
         if scan_gain[n] > 0 and (not assessed or ev.work <= budget):
             assessed.append(assess(ev, meas, effects, n, folds, round_, scans[n]))
     full = {a.fit.name for a in assessed}
-    assessed.sort(key=lambda a: (at_scan_edge(a.fit), -a.fit.heldout_nll_gain))
+    assessed.sort(key=adoption_rank)
     screened = [Screened(n, round_, float(scans[n].grid[np.argmin(scans[n].nll)]), scan_gain[n])
                 for n in order if n not in full]
     if (wide and not any(a.accepted for a in assessed) and effects and wide_searches(meas)
@@ -358,17 +357,6 @@ def _round(ev: Evaluator, meas: Measurement, effects: tuple[Effect, ...], remain
         assessed = [a for a in redone if isinstance(a, Assessment)]
         screened = [a for a in redone if not isinstance(a, Assessment)]
     return assessed, screened
-
-
-def at_scan_edge(fit: Fit) -> bool:
-    """Whether the candidate's value came out at the far end of its scan (either end, for a signed one),
-    where the likelihood was still rising: the effect stretched to mimic others, not sized by its own
-    shape.  Such a candidate goes after every one fitted inside its range (draw 195: a 0.3 s loop delay,
-    the scan's end, stood in for friction and softer springs, and hid them for the rest of the run)."""
-    p = fit.effect.PARAMS[0]
-    lo, hi = min(p.scan), max(p.scan)
-    tol = EDGE_TOLERANCE * (hi - lo)
-    return fit.value >= hi - tol or (p.signed and fit.value <= lo + tol)
 
 
 def _near_tie(round_: int, best: Assessment, assessed: list[Assessment]) -> dict | None:

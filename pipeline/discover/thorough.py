@@ -18,7 +18,7 @@ from itertools import combinations
 import numpy as np
 
 from pipeline.discover.candidates import Evaluator, Scan, make, prune
-from pipeline.discover.evidence import MAX_DELTA_BIC, Assessment, Screened, assess, nameable_size
+from pipeline.discover.evidence import MAX_DELTA_BIC, Assessment, Screened, adoption_rank, assess, nameable_size
 from pipeline.discover.joint import coordinates, joint_fit
 from pipeline.discover.measurement import Measurement
 from pipeline.discover.start_refit import refine_start
@@ -41,7 +41,7 @@ def thorough_round(ev: Evaluator, meas: Measurement, effects: tuple[Effect, ...]
         relaxed = (jointly_relaxed(ev, effects, name, scans[name])
                    if gains.get(name, 0.0) > 0 and ev.work <= budget else None)
         out.append(earlier[name] if relaxed is None else assess(ev, meas, effects, name, folds, round_, relaxed))
-    return sorted(out, key=lambda a: -a.fit.heldout_nll_gain if isinstance(a, Assessment) else float("inf"))
+    return sorted(out, key=lambda a: adoption_rank(a) if isinstance(a, Assessment) else (True, float("inf")))
 
 
 def jointly_relaxed(ev: Evaluator, base: tuple[Effect, ...], name: str, scanned: Scan) -> Scan | None:

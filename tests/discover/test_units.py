@@ -92,7 +92,7 @@ def test_an_evaluators_work_counts_the_start_estimates_of_the_models_it_replays(
 
 def test_a_value_at_the_far_end_of_its_scan_is_at_the_edge_either_end_for_a_signed_one():
     from pipeline.discover.candidates import Fit
-    from pipeline.discover.selection import at_scan_edge
+    from pipeline.discover.evidence import at_scan_edge
     from pipeline.model.effects import CATALOGUE
 
     def fit(name: str, value: float) -> Fit:
@@ -106,3 +106,23 @@ def test_a_value_at_the_far_end_of_its_scan_is_at_the_edge_either_end_for_a_sign
     assert offset.signed
     assert at_scan_edge(fit("current_sensor_offset", min(offset.scan)))
     assert not at_scan_edge(fit("current_sensor_offset", 0.5 * min(offset.scan)))
+
+
+def test_a_round_adopts_inside_its_scan_before_a_larger_gain_at_the_end_of_one():
+    """The plain and the thorough round order what passes by the same rank (``adoption_rank``)."""
+    from types import SimpleNamespace
+
+    from pipeline.discover.candidates import Fit
+    from pipeline.discover.evidence import adoption_rank
+    from pipeline.model.effects import CATALOGUE
+
+    def passing(name: str, value: float, gain: float):
+        p = CATALOGUE[name].PARAMS[0]
+        return SimpleNamespace(fit=Fit(name=name, parameter=p.name, value=value, nll=0.0, interval=(value, value),
+                                       fold_values=(), heldout_nll_gain=gain))
+
+    delay = passing("loop_delay", max(CATALOGUE["loop_delay"].PARAMS[0].scan), 900.0)
+    friction = passing("coulomb_friction", 0.0016, 800.0)
+    viscous = passing("viscous_friction", 0.0013, 850.0)
+    assert [a.fit.name for a in sorted([delay, friction, viscous], key=adoption_rank)] == [
+        "viscous_friction", "coulomb_friction", "loop_delay"]
