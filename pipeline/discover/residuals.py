@@ -17,11 +17,12 @@ Two things live here:
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from pipeline.discover.measurement import Measurement
+from pipeline.estimate import Model, Target
 from pipeline.model.simulate import SimResult
 
 
@@ -211,3 +212,12 @@ def binned(meas: Measurement, sim: SimResult, floor: dict[str, float], n_bins: i
                                 for s, r in res.items()}})
         out[key] = rows
     return out
+
+
+def target_of(meas: Measurement) -> Target:
+    """The recording as the estimation core sees it: a model's replay residuals (its start, commands
+    in flight and, after a reset, its counter zero solved for that model) and the noise floor."""
+    def of(model: Model) -> dict[str, np.ndarray]:
+        spec = replace(meas.config, model=model.base).plant_spec(model.effects)
+        return residuals(meas, meas.replay(spec))
+    return Target(name=meas.name, residuals=of, noise=noise_floor(meas))
