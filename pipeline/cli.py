@@ -27,6 +27,7 @@ def _register() -> None:
     from pipeline import run as run_stage
     from pipeline import simulate_cli
     from pipeline.derive import cli as derive_cli
+    from pipeline.calibrate import cli as calibrate_cli
     from pipeline.discover import cli as discover_cli
     from pipeline.ingest import cli as ingest_cli
     from pipeline.record import cli as record_cli
@@ -39,6 +40,7 @@ def _register() -> None:
     app.command("validate")(validate_cli.validate)
     app.command("simulate")(simulate_cli.simulate)
     app.command("discover")(discover_cli.discover)
+    app.command("calibrate")(calibrate_cli.calibrate)
     app.command("gate")(validate_cli.gate)
     app.command("view")(validate_cli.view)
     app.command("record")(record_cli.record)

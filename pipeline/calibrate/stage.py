@@ -21,6 +21,7 @@ from pipeline.estimate import FitResult, Model, Problem
 from pipeline.model.params import ModelParams
 from pipeline.model.simulate import SimResult
 from pipeline.validate.metrics import mse_only, signal_errors
+from pipeline.validate.stage import finite_or_none
 
 MODEL_KEYS = ModelParams.names()
 
@@ -52,7 +53,7 @@ class Calibration:
         return out
 
     def to_json(self) -> dict:
-        return {
+        return finite_or_none({
             "recordings": self.recordings,
             "parameters": {k: float(getattr(self.calibrated, k)) for k in MODEL_KEYS},
             "identifiable": self.identifiable,
@@ -67,7 +68,7 @@ class Calibration:
             "fit": {"chi2": self.fit.data_chi2, "samples": self.fit.n_data, "free_parameters": self.fit.k,
                     "aic": self.fit.aic, "bic": self.fit.bic, "evidence_scale": self.fit.scale,
                     "converged": self.fit.success, "evaluations": self.fit.nfev},
-        }
+        })
 
 
 def check_usable(meas: Measurement) -> None:
@@ -89,16 +90,12 @@ def _mse(measurements: list[Measurement], replays: list[SimResult]) -> dict[str,
     sums: dict[str, float] = {}
     counts: dict[str, int] = {}
     for meas, sim in zip(measurements, replays):
-        errors = signal_errors(meas.kinematics, sim_at_recording(meas, sim))
+        errors = signal_errors(meas.kinematics, sim)
         for s, mse in mse_only(errors).items():
             n = int(errors[s]["n"])
             sums[s] = sums.get(s, 0.0) + mse * n
             counts[s] = counts.get(s, 0) + n
     return {s: sums[s] / counts[s] for s in sums if counts[s]}
-
-
-def sim_at_recording(meas: Measurement, sim: SimResult) -> SimResult:
-    return sim if len(sim.t) == len(meas.kinematics) else sim
 
 
 def _replays(measurements: list[Measurement], base: ModelParams) -> list[SimResult]:

@@ -16,7 +16,7 @@ from typer.testing import CliRunner
 
 from pipeline.cli import app
 from pipeline.config import config_for_recording, resolve_config
-from pipeline.discover.adopt import adopt, without_effects_table
+from pipeline.discover.adopt import adopt, without_table
 from pipeline.discover.candidates import parameter_of
 from pipeline.discover.stage import merge_effects
 from pipeline.model.effects import CATALOGUE, make_effect
@@ -131,10 +131,10 @@ def test_adopt_only_on_request_and_validation_reads_it_back(tmp_path):
     assert cfg.plant_spec().I0 == pytest.approx(0.1, rel=0.15)
 
 
-def test_without_effects_table_keeps_everything_else():
+def test_without_table_keeps_everything_else():
     text = ("[drive]\nv_in = 6.0  # V\n\n[effects]\nbacklash = { gap = 0.01 }\n[effects.loop_delay]\nTd = 0.02\n"
             "\n[model]\nb = 0.0\n")
-    kept = without_effects_table(text)
+    kept = without_table(text)
     assert "effects" not in kept and "backlash" not in kept
     assert tomllib.loads(kept) == {"drive": {"v_in": 6.0}, "model": {"b": 0.0}}
 
