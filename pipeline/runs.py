@@ -154,6 +154,17 @@ def load_config(paths: RunPaths) -> RigConfig:
     return config_from_dict(data["config"], source=str(paths.rig_config))
 
 
+def config_sources(paths: RunPaths) -> dict[str, str]:
+    """Where each setting of the run's rig configuration came from ("section.key" -> "default" or a
+    TOML path), as stored at ingest; empty when the file does not say."""
+    try:
+        data = json.loads(paths.rig_config.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
+    sources = data.get("sources") if isinstance(data, dict) else None
+    return sources if isinstance(sources, dict) else {}
+
+
 def resolve_runs(recording: str | Path, processed: Path) -> list[RunPaths]:
     """The processed runs a user means by RECORDING: a processed run folder, a run name, or a raw CSV path
     (its runs ``<stem>`` or ``<stem>-seg1``, ``-seg2``, ...).  Refuses, naming it, when nothing matches."""

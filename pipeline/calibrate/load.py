@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 from pipeline.calibrate.structure import declared_model
 from pipeline.discover.measurement import Measurement, measurement_from_kinematics
 from pipeline.errors import PdrError
 from pipeline.model.params import ModelParams
-from pipeline.runs import RunPaths, ingest_segment, load_config, resolve_runs
+from pipeline.runs import RunPaths, config_sources, ingest_segment, load_config, resolve_runs
 from pipeline.validate.stage import load_kinematics
 
 
@@ -35,15 +34,6 @@ def _measurement(paths: RunPaths) -> Measurement:
                                        angle_reference_known=not (isinstance(index, int) and index > 0))
 
 
-def _sources(paths: RunPaths) -> dict[str, str]:
-    try:
-        data = json.loads(paths.rig_config.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return {}
-    sources = data.get("sources") if isinstance(data, dict) else None
-    return sources if isinstance(sources, dict) else {}
-
-
 def load_measurements(recordings: list[str], processed: Path, tmp: Path) -> tuple[list[Measurement], ModelParams, bool]:
     """Every segment of every recording, the prior [model] (the first recording's) and whether the rig
     declared it; refuses recordings whose [model] differ (they are not of one rig as configured)."""
@@ -56,7 +46,7 @@ def load_measurements(recordings: list[str], processed: Path, tmp: Path) -> tupl
         for paths in runs:
             measurements.append(_measurement(paths))
             models.append(measurements[-1].config.model)
-            declared = declared or declared_model(_sources(paths))
+            declared = declared or declared_model(config_sources(paths))
     if any(m != models[0] for m in models):
         raise PdrError("the recordings' TOMLs declare different [model] tables: calibrate recordings of one rig, "
                        "configured alike", path=recordings[0])

@@ -17,12 +17,14 @@ import pandas as pd
 from pipeline.config import RigConfig, effects_toml_snippet
 from pipeline.discover.measurement import Measurement, measurement_from_kinematics
 from pipeline.discover.residuals import binned, describe, signatures
+from pipeline.calibrate.structure import declared_model
+from pipeline.discover.base_free import BaseFreeCheck, check_with_base_free
 from pipeline.discover.declared import check_declared
 from pipeline.discover.longer import refit_on_more_samples
 from pipeline.discover.selection import Selection, select
 from pipeline.model.effects import Effect
 from pipeline.model.simulate import SimResult
-from pipeline.runs import RunPaths, ingest_segment, load_config
+from pipeline.runs import RunPaths, config_sources, ingest_segment, load_config
 from pipeline.validate.metrics import mse_only, signal_errors
 from pipeline.validate.stage import finite_or_none, load_kinematics
 
@@ -43,14 +45,27 @@ class Discovery:
     tables_after: dict[str, list[dict]]
     seconds: float
     declared_too_large: list[dict] = field(default_factory=list)   # see declared.check_declared
+    base_check: BaseFreeCheck | None = None    # the rig declares no [model]: effects tested with the base free
 
     @property
     def effects(self) -> tuple[Effect, ...]:
-        return self.selection.effects
+        return self.selection.effects if self.base_check is None else self.base_check.kept
 
     @property
     def verdict(self) -> str:
+        if self.base_check is not None and self.base_check.base_off:
+            return "unexplained"
         return self.selection.verdict
+
+    @property
+    def hint(self) -> str | None:
+        return None if self.base_check is None else self.base_check.hint
+
+    def interval_of(self, effect: Effect) -> tuple[float, float]:
+        """The effect's first parameter's ~95 % interval, from the fit that gave its value."""
+        if self.base_check is None:
+            return self.selection.intervals[[e.name for e in self.selection.effects].index(effect.name)]
+        return self.base_check.intervals[effect.name]
 
     @property
     def closed_loop_confirmed(self) -> bool:
@@ -68,17 +83,23 @@ def _errors(kin: pd.DataFrame, sims: dict[str, SimResult]) -> dict[str, dict[str
 
 
 def discover(kin: pd.DataFrame, config: RigConfig, name: str, after_reset: bool = False,
-             zero_samples: dict[str, int] | None = None) -> Discovery:
+             zero_samples: dict[str, int] | None = None, model_declared: bool = True) -> Discovery:
     """The whole workflow on one kinematics table (no I/O); ``after_reset``: the table is a segment
     that began after a board reset (its angle's zero is wherever the counter restarted);
-    ``zero_samples``: per signal whose zero ingest read off rest readings, how many."""
+    ``zero_samples``: per signal whose zero ingest read off rest readings, how many;
+    ``model_declared``: the rig's TOML sets its [model] (else what was found is checked with the base
+    free, ``base_free``)."""
     t0 = time.perf_counter()
     sel = select(measurement_from_kinematics(kin, config, name, angle_reference_known=not after_reset,
                                              zero_samples=zero_samples))
     sel = refit_on_more_samples(sel, kin, config, name, zero_samples)
     meas = sel.meas
+    check = None
+    if not model_declared and (sel.effects or sel.verdict != "none"):
+        check = check_with_base_free(meas, sel.effects)
+    effects = sel.effects if check is None else check.kept
     base = meas.simulate_ways(meas.spec(), sel.command_before)
-    final = meas.simulate_ways(meas.spec(sel.effects), sel.command_after) if sel.effects else base
+    final = meas.simulate_ways(meas.spec(effects), sel.command_after) if effects else base
     over = check_declared(meas, sel.floor) if sel.verdict == "unexplained" and not sel.effects else []
     sig_b = signatures(meas, base["replay"], sel.floor)
     sig_a = signatures(meas, final["replay"], sel.floor)
@@ -87,7 +108,7 @@ def discover(kin: pd.DataFrame, config: RigConfig, name: str, after_reset: bool 
                      localisation_before=describe(sig_b, sel.floor), localisation_after=describe(sig_a, sel.floor),
                      tables_before=binned(meas, base["replay"], sel.floor),
                      tables_after=binned(meas, final["replay"], sel.floor),
-                     seconds=time.perf_counter() - t0, declared_too_large=over)
+                     seconds=time.perf_counter() - t0, declared_too_large=over, base_check=check)
 
 
 def merge_effects(existing: tuple[Effect, ...], found: tuple[Effect, ...]) -> tuple[Effect, ...]:
@@ -142,7 +163,7 @@ def discovery_json(d: Discovery, recording: str) -> dict:
     out = {
         "recording": recording,
         "run": d.meas.name,
-        "effects": [_effect_json(e, span, sel) for e, span in zip(d.effects, sel.intervals)],
+        "effects": [_effect_json(e, d.interval_of(e), sel) for e in d.effects],
         "verdict": d.verdict,
         "mse_before": d.mse_before["replay"],
         "mse_after": d.mse_after["replay"],
@@ -169,6 +190,10 @@ def discovery_json(d: Discovery, recording: str) -> dict:
         "simulations": sel.simulations,
         "work": sel.work,                  # simulated samples, start estimates included (selection.WORK_BUDGET)
     }
+    if d.base_check is not None:
+        out["base_free_check"] = d.base_check.to_json()
+    if d.hint:
+        out["hint"] = d.hint
     if d.verdict == "unexplained":
         out["unexplained"] = unexplained_text(d)
         out["declared_too_large"] = d.declared_too_large
@@ -229,5 +254,5 @@ def discover_run(paths: RunPaths, recording: str | None = None) -> tuple[Discove
     kin = load_kinematics(paths)
     segment = ingest_segment(paths)
     d = discover(kin, load_config(paths), paths.name, after_reset=after_board_reset(segment),
-                 zero_samples=zero_samples(segment))
+                 zero_samples=zero_samples(segment), model_declared=declared_model(config_sources(paths)))
     return d, discovery_json(d, recording if recording is not None else str(paths.root))
