@@ -1,4 +1,4 @@
-"""Rigs that differ from Table I, as a lab's own rig would: recordings for ``pdr calibrate``'s benchmark.
+"""Rigs that differ from Table I, as a lab's own rig would: recordings for calibration (tests, benchmark).
 
 Each rig is the paper's rig with its own motor, gearbox, inertia, friction and springs, drawn at
 random (log-uniform within a stated factor of Table I, keeping the guard reachable).  The TOML the
@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.config import default_config
-from pipeline.model.effects import CATALOGUE, Effect
+from pipeline.model.effects import Effect
 from pipeline.model.params import ModelParams
 from pipeline.rig.randomised import draw_effect
 from pipeline.rig.recording import RigSetup, make_recording, write_recording
@@ -30,22 +30,19 @@ HIDDEN = ("coulomb_friction", "driver_voltage_drop", "backlash", "loop_delay", "
           "constant_load_torque")
 ROLES = ("cal_a", "cal_b", "clean", "hidden")
 
-
 @dataclass(frozen=True)
 class OffRig:
     index: int
     model: ModelParams
     hidden: Effect
 
-    def setup(self, role: str, seed: int) -> RigSetup:
+    def setup(self, role: str, seed: int, duration_s: float = 24.95) -> RigSetup:
         effects = (self.hidden,) if role == "hidden" else ()
         return RigSetup(effects=effects, config=default_config(), plant_model=self.model, seed=seed,
-                        first_dir=-1 if role == "cal_b" else 1)
-
+                        first_dir=-1 if role == "cal_b" else 1, duration_s=duration_s)
 
 def _factor(rng: np.random.Generator, spread: float) -> float:
     return float(np.exp(rng.uniform(-np.log(spread), np.log(spread))))
-
 
 def draw_rig(index: int, rng: np.random.Generator) -> OffRig:
     """One rig off Table I whose controller still reaches the guard with margin."""
@@ -60,18 +57,17 @@ def draw_rig(index: int, rng: np.random.Generator) -> OffRig:
             break
     return OffRig(index=index, model=model, hidden=draw_effect(HIDDEN[index % len(HIDDEN)], rng))
 
-
-def write_rig(rig: OffRig, out: Path, seed: int) -> dict[str, Path]:
+def write_rig(rig: OffRig, out: Path, seed: int, roles: tuple[str, ...] = ROLES,
+              duration_s: float = 24.95) -> dict[str, Path]:
     """The rig's four recordings as ``rig<i>_<role>.csv`` with TOMLs that do not declare ``[model]``."""
     paths = {}
-    for j, role in enumerate(ROLES):
+    for role in roles:
         name = f"rig{rig.index}_{role}"
-        rec = make_recording(rig.setup(role, seed * 10 + j))
+        rec = make_recording(rig.setup(role, seed * 10 + ROLES.index(role), duration_s))
         rec = replace(rec, toml_text=re.sub(r"\n\[model\]\n(?:[^\[\n][^\n]*\n)*", "\n", rec.toml_text))
         write_recording(rec, out, name)
         paths[role] = out / f"{name}.csv"
     return paths
-
 
 def rigs(seed: int, count: int = 6) -> list[OffRig]:
     rng = np.random.default_rng(seed)
@@ -81,5 +77,3 @@ def rigs(seed: int, count: int = 6) -> list[OffRig]:
 def truth_of(rig: OffRig) -> dict[str, float]:
     return {name: float(getattr(rig.model, name)) for name in ModelParams.names()}
 
-
-__all__ = ["CATALOGUE", "OffRig", "rigs", "truth_of", "write_rig"]

@@ -1,0 +1,30 @@
+"""On a rig whose [model] is not declared, effects that only stand in for the base model are dropped."""
+
+import pytest
+
+from pipeline.calibrate.load import load_measurements
+from pipeline.discover.base_free import check_with_base_free
+from pipeline.model.effects import CATALOGUE
+from pipeline.rig.other_rigs import OffRig, rigs, write_rig
+
+RIG = rigs(seed=20261128, count=3)[2]         # off Table I; its hidden effect is a backlash
+
+
+@pytest.fixture(scope="module")
+def hidden(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("lab")
+    rig = OffRig(index=RIG.index, model=RIG.model, hidden=CATALOGUE["backlash"](gap=0.06))
+    paths = write_rig(rig, tmp / "raw", seed=3, roles=("hidden",), duration_s=15.0)
+    measurements, _, declared = load_measurements([str(paths["hidden"])], tmp / "processed", tmp / "work")
+    assert not declared
+    return measurements[0]
+
+
+def test_stand_ins_are_dropped_and_the_real_effect_kept(hidden):
+    stand_ins = (CATALOGUE["spring_stiffness"](k_scale=0.93), CATALOGUE["loop_delay"](Td=0.018))
+    check = check_with_base_free(hidden, (CATALOGUE["backlash"](gap=0.05), *stand_ins))
+    assert [e.name for e in check.kept] == ["backlash"]
+    assert set(check.dropped) == {"spring_stiffness", "loop_delay"}
+    lo, hi = check.intervals["backlash"]
+    assert lo <= 0.06 <= hi and check.kept[0].gap == pytest.approx(0.06, rel=0.2)
+    assert check.base_off and "pdr calibrate" in check.hint
