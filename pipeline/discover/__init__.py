@@ -5,9 +5,9 @@ The workflow (issue 6), module by module:
 - ``measurement``: a derived run as arrays; replay (the logged command drives the model) is what
   every fit runs on, because it is smooth in the parameters -- a closed-loop free run jumps when
   a simulated switch slips by one control period.  The start (x0, pre-log commands) is estimated
-  per model as validation does (``pipeline.validate.initial_state``).  Without a logged command,
+  per model as validation does (``pipeline.estimate.initial_state``).  Without a logged command,
   the inferred motor start and near-guard switches are nuisances settled by the fit.
-- ``residuals``: the noise floor from the recording itself (``pipeline.validate.noise``: robust
+- ``residuals``: the noise floor from the recording itself (``pipeline.estimate.noise``: robust
   differences of each signal, never below the quantisation, plus the clock's share for the angle)
   and the localisation: where the residual lives, in words, numbers and tables (per mode, binned
   by state, aligned on events).

@@ -21,9 +21,9 @@ from pipeline.errors import PdrError
 from pipeline.model.effects import Effect, PlantSpec
 from pipeline.model.simulate import SimResult
 from pipeline.validate.compare import observed_signals
-from pipeline.validate.noise import sample_instants
-from pipeline.validate.initial_state import STATE_SCALES, Observed, StartEstimator, without_offset
-from pipeline.validate.start import Start
+from pipeline.estimate.noise import sample_instants
+from pipeline.estimate.initial_state import STATE_SCALES, Observed, StartEstimator, without_offset
+from pipeline.estimate.start import Start
 
 
 @dataclass(frozen=True)

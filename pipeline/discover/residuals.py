@@ -3,7 +3,7 @@
 Two things live here:
 
 * the noise floor of each signal, from the recording itself, with no model and no
-  rig settings (``pipeline.validate.noise``): a robust scale of the signal's third
+  rig settings (``pipeline.estimate.noise``): a robust scale of the signal's third
   (current) or fifth (angle) difference (everything smooth cancels, white noise
   remains), never below the quantisation q^2/12 with q read off the data (encoder
   count, ADC step), plus the clock's truncation for the angle;
@@ -53,7 +53,7 @@ MIN_FLOOR = 1e-30
 
 def noise_floor(meas: Measurement, sim: SimResult | None = None) -> dict[str, float]:
     """Per-sample variance of each fitted signal that no model can remove, from the recording
-    itself (``pipeline.validate.noise``: white part, at least the quantisation, plus the clock's
+    itself (``pipeline.estimate.noise``: white part, at least the quantisation, plus the clock's
     share for the angle), the numbers the start is weighted by.  The same for every model, so
     ``sim`` is not needed (kept for callers that pass the base model's replay)."""
     return {s: max(var, MIN_FLOOR) for s, (_, var) in meas.observed.items() if s in meas.signals}

@@ -1,6 +1,6 @@
 """The final model's start, refined on the whole recording.
 
-The start is estimated from the first seconds (``validate.initial_state``): enough to rank
+The start is estimated from the first seconds (``estimate.initial_state``): enough to rank
 candidates, but a slow mode (the armature's La/Ra of seconds, a backlash or a stick near the
 start) can leave a transient there that outlasts the window and reads as structure the model
 lacks.  Before the verdict, the final model's initial state is refined by a few Gauss-Newton
@@ -25,8 +25,8 @@ from pipeline.discover.joint import Sensitivity, sensitivity
 from pipeline.discover.residuals import residuals
 from pipeline.errors import PdrError
 from pipeline.model.effects import Effect
-from pipeline.validate.initial_state import STATE_SCALES
-from pipeline.validate.start import Start
+from pipeline.estimate.initial_state import STATE_SCALES
+from pipeline.estimate.start import Start
 
 STEPS = 3
 RELATIVE_STEP = 1e-3          # of each state's typical size (``STATE_SCALES``), for the Jacobian

@@ -5,7 +5,10 @@
 - ``problem``: recordings of one rig as targets (model -> residuals, noise) and the whitened
   residual the fit minimises;
 - ``fit``: ``least_squares`` with priors as extra rows; ``FitResult`` with covariance, AIC/BIC
-  counting every free parameter, and profile-likelihood intervals.
+  counting every free parameter, and profile-likelihood intervals;
+- the nuisances and the noise: ``start`` (a recording's start as a value), ``initial_state`` (its
+  estimate for a given plant: superposed simulations, linear least squares), ``noise`` (each
+  signal's noise floor from the recording itself, no model needed).
 """
 
 from pipeline.estimate.fit import FitResult, autocorrelation_time, fit

@@ -24,10 +24,10 @@ from pipeline.columns import column
 from pipeline.derive.energy import run_electrical_energy, run_energy
 from pipeline.model.effects import PlantSpec
 from pipeline.model.simulate import SimResult
-from pipeline.validate.initial_state import Observed, estimate_start
-from pipeline.validate.start import Start
+from pipeline.estimate.initial_state import Observed, estimate_start
+from pipeline.estimate.start import Start
 from pipeline.validate.metrics import signal_errors
-from pipeline.validate.noise import angle_noise, sample_instants, signal_noise
+from pipeline.estimate.noise import angle_noise, sample_instants, signal_noise
 
 WAYS = ("closed_loop", "replay")
 # Why a way is not run on a recording that lacks what it needs (a capture without an encoder column)

@@ -11,7 +11,7 @@ from pipeline.discover.measurement import measurement_from_kinematics
 from pipeline.discover.residuals import describe, noise_floor, signatures
 from pipeline.errors import PdrError
 from pipeline.model.simulate import simulate
-from pipeline.validate.noise import difference_noise
+from pipeline.estimate.noise import difference_noise
 
 
 def test_difference_noise_sees_white_noise_through_a_smooth_signal():

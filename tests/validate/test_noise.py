@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from pipeline.validate.noise import clock_step, difference_noise, quantum, sample_instants, signal_noise, timing_noise
+from pipeline.estimate.noise import clock_step, difference_noise, quantum, sample_instants, signal_noise, timing_noise
 
 COUNT = 2 * np.pi / 6533.12            # one encoder count, rad
 ADC_AMPS = 5.0 / 1024 / 0.185          # one ADC step of an ACS712-05B, A

@@ -32,7 +32,7 @@ import numpy as np
 
 from pipeline.model.effects import PlantSpec
 from pipeline.model.simulate import SimResult, simulate, with_lost_samples
-from pipeline.validate.start import Start, first_dir
+from pipeline.estimate.start import Start, first_dir
 
 # Samples the estimate uses: the first 2 s (at least 20 samples).  x0 shows most there (the rig's
 # oscillatory mode decays in ~1.2 s) and a model error has had little time to grow.  A model
