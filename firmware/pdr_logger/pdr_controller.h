@@ -25,10 +25,13 @@ static inline int8_t pdr_next_dir(int8_t dir, int32_t counts, int32_t guard_coun
     return dir != PDR_DIR_OFF ? dir : PDR_DIR_Q1;
 }
 
-/* The command after a motor-on sample (loop.py decide, closed loop): the first one after the lead-in
- * decides from first_dir (the model's dir0), every later one from the command before it. */
-static inline int8_t pdr_decide(int8_t dir, int32_t counts, int32_t guard_counts, int8_t first_dir)
+/* The command after sample k (counted from 0; the caller may stop counting at lead_in_samples): motor
+ * off during the lead-in, then loop.py's decide in closed loop: the first motor-on sample decides from
+ * first_dir (the model's dir0), every later one from the command before it. */
+static inline int8_t pdr_command(int8_t dir, uint32_t k, uint32_t lead_in_samples, int32_t counts,
+                                 int32_t guard_counts, int8_t first_dir)
 {
+    if (k < lead_in_samples) return PDR_DIR_OFF;
     return pdr_next_dir(dir != PDR_DIR_OFF ? dir : first_dir, counts, guard_counts);
 }
 

@@ -121,10 +121,9 @@ void loop()
     next_sample_ms += PERIOD_MS;
     int32_t counts = encoder_counts_now();
     int adc = analogRead(CURRENT_SENSOR_PIN);
-    if (samples >= LEAD_IN_SAMPLES) {
-        dir = pdr_decide(dir, counts, GUARD_COUNTS, FIRST_DIR);
-    } else {
-        samples++;
+    dir = pdr_command(dir, samples, LEAD_IN_SAMPLES, counts, GUARD_COUNTS, FIRST_DIR);
+    if (samples < LEAD_IN_SAMPLES) {
+        samples++;                               /* counted as far as it matters: no wrap after 49.7 days */
     }
     drive(dir);
     Serial.print(t_ms);

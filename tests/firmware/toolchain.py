@@ -1,0 +1,38 @@
+"""Building what the firmware tests run: the sketch for the ATmega328P (``make firmware``, which installs
+Debian's packages as root and otherwise names the missing ones) and the controller's header for the host.
+
+A machine without the toolchain fails these tests with one line that says what to do, rather than asking
+for a password; ``PDR_NO_FIRMWARE=1`` leaves the AVR tests out (tests/firmware/conftest.py)."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[2]
+SKETCH_DIR = REPO / "firmware" / "pdr_logger"
+WHAT_TO_DO = "run `make firmware-deps` as root, or set PDR_NO_FIRMWARE=1 to leave the firmware tests out"
+
+
+def build_firmware(build_dir: Path) -> tuple[Path, str]:
+    """``make firmware`` into ``build_dir``: (the .elf, make's size report)."""
+    done = subprocess.run(["make", "-s", "--no-print-directory", "firmware", f"FIRMWARE_BUILD={build_dir}"],
+                          cwd=REPO, capture_output=True, text=True)
+    if done.returncode != 0:
+        last = (done.stderr.strip().splitlines() or ["make firmware failed"])[-1]
+        pytest.fail(f"make firmware failed: {last} ({WHAT_TO_DO})", pytrace=False)
+    return build_dir / "pdr_logger.elf", done.stdout
+
+
+def build_host_driver(build_dir: Path) -> Path:
+    """decide_driver.c with the sketch's header, compiled by the host's gcc as a shared library."""
+    gcc = shutil.which("gcc")
+    if gcc is None:
+        pytest.fail(f"the host test of the controller needs gcc: {WHAT_TO_DO}", pytrace=False)
+    lib = build_dir / "libpdr_decide.so"
+    subprocess.run([gcc, "-O2", "-std=c99", "-Wall", "-Wextra", "-Werror", "-shared", "-fPIC", f"-I{SKETCH_DIR}",
+                    str(Path(__file__).with_name("decide_driver.c")), "-o", str(lib)], check=True)
+    return lib
