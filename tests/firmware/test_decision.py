@@ -18,6 +18,7 @@ from pipeline.model.effects import make_effect
 from pipeline.model.params import ControllerParams, DriveParams, ModelParams, build_spec
 from pipeline.model.simulate import simulate
 from pipeline.rig.randomised import DECODING, ENCODER_LINES, GEARBOX, draw_effects
+from tests.firmware.sketch import guard_counts
 from tests.firmware.toolchain import build_host_driver
 
 RUNS = 220
@@ -32,17 +33,6 @@ def sketch(tmp_path_factory) -> ctypes.CDLL:
     lib.pdr_decode.argtypes = [np.ctypeslib.ndpointer(np.uint8, flags="C"), ctypes.c_int32]
     lib.pdr_decode.restype = ctypes.c_int32
     return lib
-
-
-def guard_counts(guard_rad: float, counts_per_rev: float) -> int:
-    """The sketch's GUARD_COUNTS for a TOML's guard: the smallest count whose angle reaches it."""
-    count_rad = 2 * math.pi / counts_per_rev
-    n = math.ceil(guard_rad / count_rad)
-    while (n - 1) * count_rad >= guard_rad:
-        n -= 1
-    while n * count_rad < guard_rad:
-        n += 1
-    return n
 
 
 @dataclass(frozen=True)
@@ -109,10 +99,6 @@ def test_the_sketch_decides_as_the_model_on_every_sample_of_simulated_runs(sketc
         switches += int(np.count_nonzero(np.diff(firmware[run.lead_in:]) != 0))
         on_edge += int(np.count_nonzero(np.isin(np.abs(run.counts), (g - 1, g))))
     assert samples > 50_000 and switches > 1000 and on_edge > 50, (samples, switches, on_edge)
-
-
-def test_the_guard_count_is_the_first_count_at_the_guard():
-    assert guard_counts(2 * math.pi * 0.15, 6533.12) == 980               # the sketch's GUARD_COUNTS
 
 
 def test_the_sketchs_quadrature_table_counts_every_edge_both_ways(sketch):
