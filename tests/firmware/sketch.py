@@ -27,7 +27,7 @@ def toml_text() -> str:
     """The matching raw/<name>.toml, as the sketch's comment gives it."""
     text = SKETCH.read_text(encoding="utf-8")
     block = text[text.index("The matching raw/<name>.toml:"):text.index("Change a setting here")]
-    return "\n".join(line.strip().removeprefix("*").strip() for line in block.splitlines()[1:]) + "\n"
+    return "\n".join(line.strip().removeprefix("*").strip() for line in block.splitlines()[1:]).strip() + "\n"
 
 
 def guard_counts(guard_rad: float, counts_per_rev: float) -> int:

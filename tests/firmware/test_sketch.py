@@ -23,3 +23,11 @@ def test_a_line_fits_the_period_at_the_baud_rate():
     longest = len("4294967295,-2147483648,1023,-1\n")
     seconds = longest * 10 / sketch.number("BAUD")            # 8N1: ten bits a byte
     assert seconds < 0.2 * sketch.number("PERIOD_MS") / 1000
+
+
+def test_rig_md_gives_the_sketchs_toml():
+    """docs/RIG.md shows the TOML to put beside the recordings: the sketch's own, word for word."""
+    doc = (sketch.SKETCH_DIR.parents[1] / "docs" / "RIG.md").read_text(encoding="utf-8")
+    section = doc[doc.index("## The matching TOML"):]
+    shown = section[section.index("```toml\n") + len("```toml\n"):section.index("```\n", section.index("```toml"))]
+    assert shown == sketch.toml_text()
