@@ -5,7 +5,7 @@
 # (DECIMAL_DIG), which the sketch does not use: only the core files it does use are built, into an
 # archive, so the linker takes just the objects it needs, as the IDE's core.a.
 
-FIRMWARE_PACKAGES := gcc-avr avr-libc arduino-core-avr simavr gcc
+FIRMWARE_PACKAGES := gcc-avr avr-libc arduino-core-avr simavr libsimavr-dev gcc
 FIRMWARE_BUILD    ?= firmware/build
 FIRMWARE_FLASH_MAX := 32256
 FIRMWARE_RAM_MAX   := 1536

@@ -23,6 +23,11 @@ def number(name: str) -> float:
     return float(settings()[name].rstrip("fFuUlL"))
 
 
+def first_dir() -> int:
+    """FIRST_DIR as the model's dir0: 1 (q1) or -1 (q2)."""
+    return {"PDR_DIR_Q1": 1, "PDR_DIR_Q2": -1}[settings()["FIRST_DIR"]]
+
+
 def toml_text() -> str:
     """The matching raw/<name>.toml, as the sketch's comment gives it."""
     text = SKETCH.read_text(encoding="utf-8")

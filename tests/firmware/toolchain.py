@@ -36,3 +36,14 @@ def build_host_driver(build_dir: Path) -> Path:
     subprocess.run([gcc, "-O2", "-std=c99", "-Wall", "-Wextra", "-Werror", "-shared", "-fPIC", f"-I{SKETCH_DIR}",
                     str(Path(__file__).with_name("decide_driver.c")), "-o", str(lib)], check=True)
     return lib
+
+
+def build_cosim(build_dir: Path) -> Path:
+    """cosim.c (the firmware in libsimavr, its pins wired to the test's plant), compiled by the host's gcc."""
+    gcc = shutil.which("gcc")
+    if gcc is None or not Path("/usr/include/simavr/sim_avr.h").exists():
+        pytest.fail(f"the closed-loop test needs gcc and libsimavr-dev: {WHAT_TO_DO}", pytrace=False)
+    exe = build_dir / "cosim"
+    subprocess.run([gcc, "-O2", "-Wall", "-Wextra", "-Werror", "-I/usr/include/simavr",
+                    str(Path(__file__).with_name("cosim.c")), "-o", str(exe), "-lsimavr"], check=True)
+    return exe
