@@ -6,8 +6,9 @@
  * Every QUANTUM_US of simulated time it writes the command the firmware is driving (one int8: 0 motor off,
  * +1 q1 (D7 high), -1 q2; on = the PWM output D9/OC1A enabled) to stdout and reads the plant's state
  * back from stdin (int32 encoder count, int32 ACS712 output in mV): the count's edges are put on D2/D3
- * (A, B in Gray code, one edge at a time, 10 us apart; A = B = 1 at count 0), the voltage on A0.  What the firmware sends
- * over its UART goes to UART_OUT byte for byte. */
+ * (A, B in Gray code, one edge at a time, 10 us apart; A = B = 1 at count 0), the voltage on A0.
+ * What the firmware sends over its UART goes to UART_OUT byte for byte.  The pins are the sketch's
+ * (test_closed_loop.py checks its settings against these). */
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>

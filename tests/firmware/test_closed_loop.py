@@ -24,7 +24,7 @@ from pipeline.model import loop
 from pipeline.model.linear import phi_gamma_into
 from pipeline.model.simulate import simulate
 from tests.firmware import sketch
-from tests.firmware.toolchain import build_cosim, build_firmware
+from tests.firmware.toolchain import build_cosim
 
 PDR = str(Path(sys.executable).parent / "pdr")
 SIMULATED_S = 11.0
@@ -35,10 +35,13 @@ pytestmark = pytest.mark.slow
 
 
 @pytest.fixture(scope="module")
-def recording(tmp_path_factory) -> Path:
+def recording(firmware, tmp_path_factory) -> Path:
     """raw/ with logger.csv (the firmware's UART, byte for byte) and the sketch's logger.toml."""
-    build = tmp_path_factory.mktemp("firmware")
-    elf, cosim = build_firmware(build)[0], build_cosim(build)
+    wired = {"ENCODER_A_PIN": "2", "ENCODER_B_PIN": "3", "CURRENT_SENSOR_PIN": "A0", "DRIVE_DIR_PIN": "7",
+             "DRIVE_PWM_PIN": "9"}
+    assert {k: sketch.settings()[k] for k in wired} == wired, "cosim.c wires the pins docs/RIG.md gives"
+    build = tmp_path_factory.mktemp("cosim")
+    elf, cosim = firmware[0], build_cosim(build)
     raw = build / "raw"
     raw.mkdir()
     (raw / "logger.toml").write_text(sketch.toml_text(), encoding="utf-8")

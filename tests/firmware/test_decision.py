@@ -59,7 +59,8 @@ def simulated_run(rng: np.random.Generator) -> Run:
     log[min(lead_in, n - 1)] = first_dir
     x0 = (0.0, 0.0, float(rng.uniform(-1.0, 1.0)) * guard * spec.params.R)
     theta = simulate(spec, np.arange(n) * period, x0=x0, dir_log=log).theta
-    cpr = round(int(rng.choice(ENCODER_LINES)) * int(rng.choice(DECODING)) * (GEARBOX if rng.random() < 0.5 else 1.0), 6)
+    gearbox = GEARBOX if rng.random() < 0.5 else 1.0                 # without one: a coarse count
+    cpr = round(int(rng.choice(ENCODER_LINES)) * int(rng.choice(DECODING)) * gearbox, 6)
     edges = theta * cpr / (2 * math.pi)
     counts = np.floor(edges) if rng.random() < 0.5 else np.rint(edges)
     return Run(counts.astype(np.int32), cpr, guard, lead_in, first_dir)
@@ -92,7 +93,8 @@ def test_the_sketch_decides_as_the_model_on_every_sample_of_simulated_runs(sketc
         run = simulated_run(rng)
         model, firmware = model_commands(run), sketch_commands(sketch, run)
         differ = np.flatnonzero(model != firmware)
-        assert len(differ) == 0, f"run {i}: first differs at sample {differ[0]}: model {model[differ[0]]}, sketch {firmware[differ[0]]}"
+        assert len(differ) == 0, (f"run {i}: first differs at sample {differ[0]}: "
+                                  f"model {model[differ[0]]}, sketch {firmware[differ[0]]}")
         assert np.all(firmware[:run.lead_in] == 0) and np.all(firmware[run.lead_in:] != 0)
         g = guard_counts(run.guard_rad, run.counts_per_rev)
         samples += len(run.counts)

@@ -17,16 +17,10 @@ import pyarrow.parquet as pq
 import pytest
 
 from tests.firmware import sketch
-from tests.firmware.toolchain import build_firmware
 
 PDR = str(Path(sys.executable).parent / "pdr")
 WALL_S = 8.0
 _COLOUR = re.compile(rb"\x1b\[[0-9;]*m")
-
-
-@pytest.fixture(scope="module")
-def elf(tmp_path_factory) -> Path:
-    return build_firmware(tmp_path_factory.mktemp("firmware"))[0]
 
 
 def uart_bytes(simavr_log: bytes) -> bytes:
@@ -49,10 +43,10 @@ def run_simavr(elf: Path, log: Path) -> bytes:
 
 
 @pytest.mark.slow
-def test_the_firmware_in_simavr_prints_a_recording_pdr_ingest_accepts(elf, tmp_path):
+def test_the_firmware_in_simavr_prints_a_recording_pdr_ingest_accepts(firmware, tmp_path):
     raw = tmp_path / "raw"
     raw.mkdir()
-    (raw / "logger.csv").write_bytes(run_simavr(elf, tmp_path / "simavr.log"))
+    (raw / "logger.csv").write_bytes(run_simavr(firmware[0], tmp_path / "simavr.log"))
     (raw / "logger.toml").write_text(sketch.toml_text(), encoding="utf-8")
     lines = (raw / "logger.csv").read_text().splitlines()
     assert lines[0].startswith("# pdr_logger ") and lines[1] == "t_ms,counts,adc,dir"
