@@ -22,9 +22,15 @@ def build_firmware(build_dir: Path) -> tuple[Path, str]:
     done = subprocess.run(["make", "-s", "--no-print-directory", "firmware", f"FIRMWARE_BUILD={build_dir}"],
                           cwd=REPO, capture_output=True, text=True)
     if done.returncode != 0:
-        last = (done.stderr.strip().splitlines() or ["make firmware failed"])[-1]
-        pytest.fail(f"make firmware failed: {last} ({WHAT_TO_DO})", pytrace=False)
+        pytest.fail(f"make firmware failed: {first_reason(done.stderr)} ({WHAT_TO_DO})", pytrace=False)
     return build_dir / "pdr_logger.elf", done.stdout
+
+
+def first_reason(stderr: str) -> str:
+    """The line that says why make failed: the first that is not make's own "make: *** ... Error" trailer."""
+    lines = [line for line in stderr.strip().splitlines() if line.strip()]
+    said = [line for line in lines if not line.startswith(("make:", "make["))]
+    return (said or lines or ["no output"])[0]
 
 
 def build_host_driver(build_dir: Path) -> Path:
