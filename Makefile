@@ -11,6 +11,8 @@ STAMP  := $(VENV)/.installed-stamp
 
 all: run
 
+include firmware/firmware.mk
+
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
