@@ -20,9 +20,16 @@ import tempfile
 import time
 from pathlib import Path
 
+from pipeline.model.params import ModelParams
 from pipeline.rig.other_rigs import ROLES, rigs, truth_of, write_rig
 
 PDR = [str(Path(sys.executable).with_name("pdr"))]
+PRIOR_J = ModelParams().J
+
+
+def _relative_to_j(effect, param: str) -> bool:
+    unit = effect.UNITS[param]
+    return unit.startswith("N m") or unit.startswith("kg m")
 
 
 def run(args: list[str], cwd: Path) -> tuple[dict, float]:
@@ -82,6 +89,12 @@ def main() -> None:
                     found = next((e for e in doc.get("effects", []) if e["name"] == h.name), None)
                     entry["error"] = (None if found is None else
                                       max(abs(found["parameters"][p] / v - 1) for p, v in h.parameters.items() if v))
+                    # a torque (or inertia) is pinned only relative to J, which calibration holds at its prior:
+                    # the size under that convention is the true one times J_prior / J_true
+                    ratio = PRIOR_J / truth["J"]
+                    entry["error_under_convention"] = (None if found is None else max(
+                        abs(found["parameters"][p] / (v * (ratio if _relative_to_j(h, p) else 1.0)) - 1)
+                        for p, v in h.parameters.items() if v))
                     entry["right"] = (named(doc) == [h.name] and entry["error"] is not None and entry["error"] <= 0.2)
                 else:
                     entry["right"] = doc.get("verdict") == "none" and not named(doc)
