@@ -239,6 +239,20 @@ def _refused(name: str, reason: str) -> dict:
             "timing_s": {}}
 
 
+def refuse_nested(raw: Path, processed: Path) -> None:
+    """An output folder inside the raw folder (``--processed raw/out``) would put outputs among the
+    recordings and make them recordings of the next scan; a raw folder inside the outputs would be
+    pruned as an orphan run.  Both are refused, as the same folder is (links resolved)."""
+    r, p = raw.resolve(), processed.resolve()
+    if p == r:
+        raise PdrError("the output folder is the raw folder: give --processed a folder outside it", path=processed)
+    if r in p.parents:
+        raise PdrError(f"the output folder is inside the raw folder {raw}: give --processed a folder outside it",
+                       path=processed)
+    if p in r.parents:
+        raise PdrError(f"the raw folder is inside the output folder {processed}: keep them apart", path=raw)
+
+
 def run_pipeline(raw: Path, processed: Path, *, jobs: int = 2, force: bool = False,
                  show_progress: bool = False, code: str | None = None, method: str | None = None,
                  cluster: str | None = None) -> RunReport:
@@ -252,6 +266,7 @@ def run_pipeline(raw: Path, processed: Path, *, jobs: int = 2, force: bool = Fal
     raw, processed = Path(raw), Path(processed)
     if not raw.is_dir():
         raise PdrError("raw folder not found (expected a folder of <name>.csv recordings)", path=raw)
+    refuse_nested(raw, processed)
     report = RunReport(started=time.perf_counter())
     with processed_lock(processed):
         remove_stale_temporaries(processed)         # a killed run's summary.csv temporary
