@@ -83,11 +83,11 @@ def recording_to_open(rrds: dict[str, Path]) -> Path:
 
 
 def open_native(path: Path) -> None:
-    from pipeline.validate.rerun_io import rerun_executable
+    from pipeline.validate.rerun_io import rerun_env, rerun_executable
 
     if not display_available():
         raise PdrError(NO_DISPLAY)
-    subprocess.Popen([rerun_executable(), str(path)])
+    subprocess.Popen([rerun_executable(), str(path)], env=rerun_env())
 
 
 class _FileHandler(http.server.BaseHTTPRequestHandler):
@@ -147,7 +147,7 @@ def _wait_listening(host: str, port: int, proc: subprocess.Popen, timeout: float
 
 def serve_web(path: Path, bind: str = "127.0.0.1", port: int = 9090, file_port: int | None = None) -> WebServer:
     """Serve ``path`` over HTTP on ``file_port`` (default ``port + 1``) and Rerun's web viewer on ``port``."""
-    from pipeline.validate.rerun_io import rerun_executable
+    from pipeline.validate.rerun_io import rerun_env, rerun_executable
 
     file_port = port + 1 if file_port is None else file_port
     handler = type("Handler", (_FileHandler,), {"files": {f"/{path.name}": Path(path)}})
@@ -159,7 +159,7 @@ def serve_web(path: Path, bind: str = "127.0.0.1", port: int = 9090, file_port: 
     host = "127.0.0.1" if bind in ("0.0.0.0", "::") else bind
     recording_url = f"http://{host}:{file_port}/{urllib.parse.quote(path.name)}"
     viewer = subprocess.Popen([rerun_executable(), "--serve-web", "--bind", bind, "--web-viewer-port", str(port),
-                               recording_url], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                               recording_url], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=rerun_env())
     try:
         _wait_listening(host, port, viewer)
     except PdrError:

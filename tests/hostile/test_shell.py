@@ -3,9 +3,11 @@ a ``--cluster`` that is not a dask scheduler, and the network."""
 
 from __future__ import annotations
 
+import ipaddress
 import json
 import os
 import random
+import re
 import signal
 import subprocess
 import time
@@ -108,3 +110,46 @@ def test_a_run_with_a_closed_output_stream_processes_everything_and_says_so_by_i
     assert (processed / ".pdr.lock").stat().st_size == 0, "something wrote into the lock file (fd 2 reused)"
     if closed == ">&-":
         assert "pdr run: 2 recording(s) processed" in proc.stderr
+
+
+_PENDING_EVENT = '{"time_utc":"2026-01-01T00:00:00Z","kind":"Append","name":"viewer_started","props":{}}\n'
+_REMOTE = re.compile(r"(connect|sendto|sendmsg)\(.*sa_family=AF_INET6?, sin6?_port=htons\((\d+)\), "
+                     r"(?:inet_pton\(AF_INET6, |sin6_flowinfo=.*?inet_pton\(AF_INET6, |sin_addr=inet_addr\()\"([^\"]+)\"")
+
+
+def _home_with_rerun_analytics_on(home: Path) -> Path:
+    """A user's home as the Rerun viewer leaves it: analytics enabled (not a first run) and one event of an
+    earlier session pending, which any rerun process with analytics on sends to tel.rerun.io."""
+    (home / ".config" / "rerun").mkdir(parents=True)
+    data = home / ".local" / "share" / "rerun" / "analytics"
+    data.mkdir(parents=True)
+    (home / ".config" / "rerun" / "analytics.json").write_text(json.dumps({
+        "analytics_enabled": True, "analytics_id": "0" * 32, "metadata": {},
+        "config_file_path": str(home / ".config" / "rerun" / "analytics.json"), "data_dir_path": str(data)}))
+    (data / "00000000-0000-4000-8000-000000000000.json").write_text(_PENDING_EVENT)
+    return data
+
+
+@pytest.mark.slow
+def test_a_run_opens_no_socket_beyond_loopback_and_leaves_rerun_analytics_alone(workspace, tmp_path):
+    """Every process of the run (pdr, the forkserver, the workers, the rerun CLI they start) traced by
+    strace: a connection or datagram to an address other than loopback, or a DNS lookup, fails the test."""
+    raw = _raw_with_goods(workspace)
+    processed = workspace.processed()
+    home = tmp_path / "home"
+    pending = _home_with_rerun_analytics_on(home)
+    before = sorted(p.name for p in pending.iterdir())
+    trace = tmp_path / "network.trace"
+    env = {k: v for k, v in os.environ.items() if k not in ("CI", "XDG_CONFIG_HOME", "XDG_DATA_HOME")}
+    proc = subprocess.run(["strace", "-f", "--seccomp-bpf", "-e", "trace=connect,sendto,sendmsg", "-o", str(trace),
+                           PDR, "run", "--raw", str(raw), "--processed", str(processed), "-j", "2"],
+                          capture_output=True, text=True, timeout=300, env={**env, "HOME": str(home)})
+    assert proc.returncode == 0, proc.stderr
+    calls = trace.read_text().splitlines()
+    assert any("connect(" in c or "sendmsg(" in c for c in calls), "strace saw nothing: the trace is not working"
+    remote = [(m[1], m[2], m[3]) for m in map(_REMOTE.search, calls) if m
+              and (m[2] == "53" or not ipaddress.ip_address(m[3]).is_loopback)]
+    assert remote == [], remote
+    assert sorted(p.name for p in pending.iterdir()) == before, "rerun's analytics ran (a session file appeared)"
+    for seed in SEEDS:
+        workspace.assert_as_alone(processed, seed)
