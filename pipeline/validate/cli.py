@@ -116,7 +116,7 @@ def view(
     bind: str = typer.Option("127.0.0.1", "--bind", help="With --web: the address to listen on "
                              "(0.0.0.0 for every interface)."),
     port: int = typer.Option(9090, "--port", help="With --web: the web viewer's port; the recording is served "
-                             "on the next one."),
+                             "on the next one (0: any free pair)."),
 ) -> None:
     """Open runs' Rerun recordings (with their saved layout) in the Rerun viewer; several side by side.
 
@@ -141,8 +141,9 @@ def view(
         open_native(path)
         return
     server = serve_web(path, bind=bind, port=port)
+    port, file_port = server.port, server.file_port
     typer.echo(f"pdr view: {', '.join(rrds)} at {server.url}\n  Ctrl-C stops; from another machine: "
-               f"ssh -L {port}:localhost:{port} -L {port + 1}:localhost:{port + 1} THIS_HOST, then open the address")
+               f"ssh -L {port}:localhost:{port} -L {file_port}:localhost:{file_port} THIS_HOST, then open the address")
     try:
         while True:
             time.sleep(3600)
