@@ -39,9 +39,9 @@ def run_command(
 
     Example: pdr run --raw raw --processed processed -j 2   (or --cluster tcp://HOST:8786)
     """
-    from pipeline.run.stop import Stopped, sigterm_stops
+    from pipeline.run.stop import Stopped, stop_signals
 
-    with sigterm_stops():
+    with stop_signals():
         try:
             report = run_pipeline(raw, processed, jobs=jobs, force=force, show_progress=sys.stderr.isatty(),
                                   cluster=cluster or None)

@@ -53,13 +53,20 @@ def _raise_terminated(signum: int, frame: object) -> None:
 
 
 @contextmanager
-def sigterm_stops() -> Iterator[None]:
-    """SIGTERM raises ``Stopped`` in the main thread for the duration (the cleanup of Ctrl-C then runs)."""
+def stop_signals() -> Iterator[None]:
+    """For the duration: SIGTERM raises ``Stopped`` in the main thread (the cleanup of Ctrl-C then runs),
+    and SIGINT raises ``KeyboardInterrupt`` even when it was ignored from the start.  A shell without job
+    control starts ``pdr run &`` with SIGINT ignored, which Python keeps: a script's ``kill -INT`` (or a
+    Ctrl-C to its whole group) then went unheard and the run carried on to the end."""
     if not _in_main_thread():
         yield
         return
-    previous = signal.signal(signal.SIGTERM, _raise_terminated)
+    previous_term = signal.signal(signal.SIGTERM, _raise_terminated)
+    previous_int = signal.getsignal(signal.SIGINT)
+    if previous_int == signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        signal.signal(signal.SIGTERM, previous_term)
+        signal.signal(signal.SIGINT, previous_int)

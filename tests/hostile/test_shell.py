@@ -153,3 +153,17 @@ def test_a_run_opens_no_socket_beyond_loopback_and_leaves_rerun_analytics_alone(
     assert sorted(p.name for p in pending.iterdir()) == before, "rerun's analytics ran (a session file appeared)"
     for seed in SEEDS:
         workspace.assert_as_alone(processed, seed)
+
+
+@pytest.mark.slow
+def test_kill_int_of_a_run_started_in_the_background_by_a_script_is_heard(workspace):
+    """``pdr run &`` in a shell without job control starts with SIGINT ignored; the stop must still work."""
+    raw = _raw_with_goods(workspace)
+    processed = workspace.processed()
+    script = 'trap "" INT; "$0" run --raw "$1" --processed "$2" -j 2 & pid=$!; sleep 1.5; kill -INT $pid; wait $pid'
+    proc = subprocess.run(["sh", "-c", script, PDR, str(raw), str(processed)],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 130, proc.stderr
+    assert proc.stderr.splitlines() == ["pdr: interrupted: the recordings finished so far are kept; pdr run again "
+                                        "does the rest"], proc.stderr
+    _no_torn_or_temporary_file(processed)
