@@ -45,10 +45,10 @@ def run_command(
         try:
             report = run_pipeline(raw, processed, jobs=jobs, force=force, show_progress=sys.stderr.isatty(),
                                   cluster=cluster or None)
+            print_report(report, processed)
         except KeyboardInterrupt as err:        # said here: typer turns it into a silent exit 130
             stop = err if isinstance(err, Stopped) else Stopped()
             typer.echo(f"pdr: {stop}", err=True)
             raise typer.Exit(stop.exit_status) from None
-    print_report(report, processed)
     if report.failed:
         raise typer.Exit(1)
