@@ -1,5 +1,5 @@
 """The command's shell under hostile use: folders nested in each other, closed output streams, signals,
-a ``--cluster`` that is not a dask scheduler, and the network."""
+and the network (``--cluster`` at what is not a scheduler: tests/cluster/test_probe.py)."""
 
 from __future__ import annotations
 
