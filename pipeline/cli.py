@@ -68,6 +68,9 @@ def main() -> None:
     other exception is a bug in pdr, reported as one line that says so
     (``PDR_DEBUG=1`` shows the traceback).
     """
+    from pipeline.io.streams import mend_standard_streams
+
+    mend_standard_streams()                      # a shell's 2>&- or >&-: see that module
     for stream in (sys.stdout, sys.stderr):      # file names need not be valid UTF-8 (or fit the console)
         if hasattr(stream, "reconfigure"):
             stream.reconfigure(errors="backslashreplace")

@@ -23,12 +23,13 @@ from typing import TYPE_CHECKING
 from pipeline.config import RigConfig, config_from_dict
 from pipeline.errors import PdrError
 
-_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
+_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")
 
 
 def check_name(name: str) -> str:
-    """A recording name that is safe as a file stem (raw/<name>.csv) and a run folder."""
-    if not _NAME.match(name):
+    """A recording name that is safe as a file stem (raw/<name>.csv) and a run folder: the whole name
+    must match (``re.match`` with ``$`` let a trailing newline through)."""
+    if not _NAME.fullmatch(name):
         raise PdrError(f"expected a recording name of letters, digits, '_', '-' or '.', got {name!r}", key="NAME")
     return name
 

@@ -24,9 +24,12 @@ def connect(address: str, timeout: float | None = None):
     """A ``distributed.Client`` on ``address`` with at least one worker; a one-line error otherwise."""
     from distributed import Client
 
+    from pipeline.cluster.probe import check_scheduler
+
+    check_scheduler(address, timeout or CONNECT_TIMEOUT_S)     # never hand the client a non-scheduler
     try:
         client = Client(address, timeout=timeout or CONNECT_TIMEOUT_S, set_as_default=False)
-    except (OSError, TimeoutError, ValueError) as err:
+    except (OSError, TimeoutError, ValueError, TypeError) as err:
         raise PdrError(f"cannot reach a dask scheduler there (expected tcp://HOST:PORT of a running "
                        f"`dask scheduler`): {err}", path=address) from None
     try:

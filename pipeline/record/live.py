@@ -42,6 +42,7 @@ class ViewSink:
         """Attach the stream; a viewer that cannot start is a one-line error pointing at the other sinks."""
         import rerun as rr
 
+        from pipeline.validate.rerun_io import ANALYTICS_OFF
         from pipeline.validate.rerun_log import rerun_executable
 
         if self.kind == "spawn" and not has_display():
@@ -49,6 +50,7 @@ class ViewSink:
                            "FILE.rrd (open it later with rerun FILE.rrd), --connect URL or --no-view")
         try:
             if self.kind == "spawn":            # the wheel's own viewer binary: .venv/bin need not be on PATH
+                os.environ.setdefault(*ANALYTICS_OFF)      # rr.spawn takes no environment (rerun_io says why)
                 rr.spawn(executable_path=rerun_executable(), default_blueprint=blueprint, recording=rec)
             elif self.kind == "connect":
                 rec.connect_grpc(self.target, default_blueprint=blueprint)

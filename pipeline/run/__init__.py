@@ -39,8 +39,16 @@ def run_command(
 
     Example: pdr run --raw raw --processed processed -j 2   (or --cluster tcp://HOST:8786)
     """
-    report = run_pipeline(raw, processed, jobs=jobs, force=force, show_progress=sys.stderr.isatty(),
-                          cluster=cluster or None)
-    print_report(report, processed)
+    from pipeline.run.stop import Stopped, stop_signals
+
+    with stop_signals():
+        try:
+            report = run_pipeline(raw, processed, jobs=jobs, force=force, show_progress=sys.stderr.isatty(),
+                                  cluster=cluster or None)
+            print_report(report, processed)
+        except KeyboardInterrupt as err:        # said here: typer turns it into a silent exit 130
+            stop = err if isinstance(err, Stopped) else Stopped()
+            typer.echo(f"pdr: {stop}", err=True)
+            raise typer.Exit(stop.exit_status) from None
     if report.failed:
         raise typer.Exit(1)

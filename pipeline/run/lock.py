@@ -49,3 +49,26 @@ def processed_lock(processed: Path, wait_message: bool = True) -> Iterator[None]
         yield
     finally:
         lock.release()
+
+
+@contextmanager
+def reading_lock(processed: Path) -> Iterator[None]:
+    """The same lock for a command that only reads ``processed/`` (``pdr gate``): it waits for a run that
+    is writing instead of reading half its outputs.  Nothing is created: a folder that is missing, or that
+    cannot be locked because it cannot be written (a read-only copy), has no writer to wait for."""
+    lock = FileLock(Path(processed) / LOCK_NAME, thread_local=False, preserve_lock_file=True,
+                    fallback_to_soft=False)
+    try:
+        if Path(processed).is_dir():
+            try:
+                lock.acquire(timeout=0)
+            except Timeout:
+                print(f"pdr: waiting for another pdr process using {processed}/ ...", file=sys.stderr)
+                lock.acquire()
+    except OSError:
+        pass
+    try:
+        yield
+    finally:
+        if lock.is_locked:
+            lock.release()

@@ -35,6 +35,7 @@ from pipeline.io.atomic import deferred_sync, remove_stale_temporaries
 from pipeline.run.lock import processed_lock
 from pipeline.run.recordings import scan_raw
 from pipeline.run.report import RunReport
+from pipeline.run.stop import children_ignore_sigint
 from pipeline.run.stages import derive_ahead, ingest_ahead, process_chunk
 from pipeline.run.stamp import Stamp, code_version, previous_runs, prune_orphans, stamp_for, up_to_date, withdraw
 from pipeline.runs import SUMMARY_CSV
@@ -79,7 +80,11 @@ def make_pool(jobs: int, method: str | None = None):
     method = method or start_method()
     ctx = multiprocessing.get_context(method)
     if method == "forkserver":
+        from multiprocessing import forkserver
+
         ctx.set_forkserver_preload(PRELOAD)
+        with children_ignore_sigint():      # Ctrl-C is the parent's to handle (pipeline.run.stop)
+            forkserver.ensure_running()
     return ProcessPoolExecutor(max_workers=jobs, mp_context=ctx, initializer=_init_worker)
 
 
@@ -110,13 +115,25 @@ def chunks(todo: list, jobs: int) -> list[list]:
 
 
 def _start_pool(pool) -> None:
-    """Start the pool's workers (returns when one has run a task)."""
-    from concurrent.futures.process import BrokenProcessPool
+    """Start the pool's workers (returns when one has run a task).
 
+    Whatever goes wrong here the main thread sees on its own submissions: a pool that broke while
+    starting (each recording is then retried alone), or one stopped by Ctrl-C or SIGTERM (the
+    forkserver gone: ``EOFError``; the pool shut: ``RuntimeError``).  Nothing is printed from here."""
     try:
         pool.submit(os.getpid).result()
-    except BrokenProcessPool:      # the submissions that follow see it and retry each recording alone
+    except BaseException:  # noqa: BLE001  (a thread's error would be printed as a traceback)
         pass
+
+
+def _stop_workers(pool, processed: Path) -> None:
+    """After Ctrl-C or SIGTERM: end the workers now (they ignore SIGINT, and a chunk can take seconds),
+    then remove the temporaries they leave; every output is written by rename, so none is torn."""
+    for proc in list((pool._processes or {}).values()):     # the executor keeps no public handle on them
+        proc.terminate()
+    pool.shutdown(wait=True, cancel_futures=True)
+    for folder in (processed, *(p for p in processed.iterdir() if p.is_dir())):
+        remove_stale_temporaries(folder)
 
 
 def _ingest_ahead(todo: list[tuple[Path, Stamp]], processed: Path, starting: threading.Thread) -> dict[str, dict]:
@@ -195,7 +212,7 @@ def _execute(todo: list[tuple[Path, Stamp]], processed: Path, jobs: int, show_pr
     try:
         with _shared_folder() as backgrounds, _progress(show_progress) as bar:
             task = bar.add_task("", total=len(todo))
-            with pool:
+            try:
                 ahead = _ingest_ahead(todo, processed, starting)
                 starting.join()
                 report.pool_ready_s, report.ingested_ahead = time.perf_counter() - report.started, len(ahead)
@@ -223,6 +240,10 @@ def _execute(todo: list[tuple[Path, Stamp]], processed: Path, jobs: int, show_pr
                         continue
                     bar.update(task, description=chunk[-1][0].name)
                     bar.advance(task, len(chunk))
+            except KeyboardInterrupt:           # Ctrl-C or SIGTERM (pipeline.run.stop)
+                _stop_workers(pool, processed)
+                raise
+            pool.shutdown()
             # A worker that dies (e.g. a crash in a native library) takes every pending recording
             # with it: retry those one by one, each in a fresh worker, so only the culprit fails.
             for csv, stamp in sorted(broken, key=lambda item: item[0]):
@@ -239,6 +260,20 @@ def _refused(name: str, reason: str) -> dict:
             "timing_s": {}}
 
 
+def refuse_nested(raw: Path, processed: Path) -> None:
+    """An output folder inside the raw folder (``--processed raw/out``) would put outputs among the
+    recordings and make them recordings of the next scan; a raw folder inside the outputs would be
+    pruned as an orphan run.  Both are refused, as the same folder is (links resolved)."""
+    r, p = raw.resolve(), processed.resolve()
+    if p == r:
+        raise PdrError("the output folder is the raw folder: give --processed a folder outside it", path=processed)
+    if r in p.parents:
+        raise PdrError(f"the output folder is inside the raw folder {raw}: give --processed a folder outside it",
+                       path=processed)
+    if p in r.parents:
+        raise PdrError(f"the raw folder is inside the output folder {processed}: keep them apart", path=raw)
+
+
 def run_pipeline(raw: Path, processed: Path, *, jobs: int = 2, force: bool = False,
                  show_progress: bool = False, code: str | None = None, method: str | None = None,
                  cluster: str | None = None) -> RunReport:
@@ -252,6 +287,7 @@ def run_pipeline(raw: Path, processed: Path, *, jobs: int = 2, force: bool = Fal
     raw, processed = Path(raw), Path(processed)
     if not raw.is_dir():
         raise PdrError("raw folder not found (expected a folder of <name>.csv recordings)", path=raw)
+    refuse_nested(raw, processed)
     report = RunReport(started=time.perf_counter())
     with processed_lock(processed):
         remove_stale_temporaries(processed)         # a killed run's summary.csv temporary

@@ -58,7 +58,8 @@ def gate(
         None, "--thresholds",
         help=f"MSE thresholds TOML [default: {DEFAULT_THRESHOLDS}, else the built-in defaults of README.md]."),
 ) -> None:
-    """Check every processed run's MSEs against its thresholds; exit 1 if any run exceeds.
+    """Check every processed run's MSEs against its thresholds; exit 1 if any run exceeds, has no figures
+    to gate or an unreadable validation.json, or if the thresholds name a run that is not there.
 
     Without --thresholds, raw/thresholds.toml is used when it exists, else the built-in
     defaults (replay: theta 1e-5 rad^2, omega 5e-4 (rad/s)^2, current 1.5e-3 A^2; closed loop:
@@ -68,11 +69,13 @@ def gate(
     """
     from rich.table import Table
 
+    from pipeline.run.lock import reading_lock
     from pipeline.validate.gate import BUILTIN_SOURCE, UNITS, gate as run_gate, load_thresholds
     from pipeline.validate.console import wide_console
 
     spec = load_thresholds(thresholds or DEFAULT_THRESHOLDS, missing_ok=thresholds is None)
-    verdicts = run_gate(processed, spec)
+    with reading_lock(processed):
+        verdicts = run_gate(processed, spec)
     if not verdicts:
         raise PdrError("no processed runs to gate (run pdr run first)", path=processed)
     if spec.source == BUILTIN_SOURCE:
@@ -100,7 +103,7 @@ def gate(
     if failed:
         for v in failed:
             typer.echo(f"gate: FAIL {v.run}: " + "; ".join(v.failures()), err=True)
-        typer.echo(f"gate: {len(failed)} of {len(verdicts)} runs exceed their thresholds", err=True)
+        typer.echo(f"gate: {len(failed)} of {len(verdicts)} runs failed", err=True)
         raise typer.Exit(1)
     typer.echo(f"gate: all {len(verdicts)} runs within their thresholds")
 
@@ -113,7 +116,7 @@ def view(
     bind: str = typer.Option("127.0.0.1", "--bind", help="With --web: the address to listen on "
                              "(0.0.0.0 for every interface)."),
     port: int = typer.Option(9090, "--port", help="With --web: the web viewer's port; the recording is served "
-                             "on the next one."),
+                             "on the next one (0: any free pair)."),
 ) -> None:
     """Open runs' Rerun recordings (with their saved layout) in the Rerun viewer; several side by side.
 
@@ -138,8 +141,9 @@ def view(
         open_native(path)
         return
     server = serve_web(path, bind=bind, port=port)
+    port, file_port = server.port, server.file_port
     typer.echo(f"pdr view: {', '.join(rrds)} at {server.url}\n  Ctrl-C stops; from another machine: "
-               f"ssh -L {port}:localhost:{port} -L {port + 1}:localhost:{port + 1} THIS_HOST, then open the address")
+               f"ssh -L {port}:localhost:{port} -L {file_port}:localhost:{file_port} THIS_HOST, then open the address")
     try:
         while True:
             time.sleep(3600)

@@ -11,7 +11,10 @@ with the simulator's own switching) and signal, plus per-recording overrides::
 
 A signal without a threshold is reported but not gated.  A run counts as
 failed when any gated MSE exceeds its threshold, and also when it has no
-``validation.json`` (the pipeline did not get that far).
+``validation.json`` (the pipeline did not get that far), when that file is not
+what validate writes, or when it holds no figure to gate: a gate that cannot
+fail is worse than none.  For the same reason a thresholds file naming a run
+that ``processed/`` does not hold fails the gate, naming it.
 
 Without a thresholds file the gate uses ``BUILTIN_DEFAULTS`` (the shipped
 ``raw/thresholds.toml``'s defaults, which a test keeps equal): a new project
@@ -158,21 +161,54 @@ class RunVerdict:
                 for c in self.checks if not c.passed]
 
 
-def check_run(validation: dict, thresholds: Thresholds) -> RunVerdict:
-    """Pure: one run's validation figures against its thresholds."""
-    run = validation["run"]
+class MalformedValidation(ValueError):
+    """A ``validation.json`` whose shape is not what validate writes: the message says where and what was expected."""
+
+
+def _block(doc: dict, key: str) -> dict:
+    value = doc.get(key)
+    if value is None:
+        return {}
+    if not isinstance(value, dict):
+        raise MalformedValidation(f"'{key}': expected an object, got {type(value).__name__}")
+    return value
+
+
+def _mse(entry: object, where: str) -> float | None:
+    """One signal's MSE as a number (None when absent); anything else is a malformed document."""
+    if not isinstance(entry, dict):
+        raise MalformedValidation(f"'{where}': expected an object with 'mse', got {type(entry).__name__}")
+    mse = entry.get("mse")
+    if mse is None:
+        return None
+    if isinstance(mse, bool) or not isinstance(mse, (int, float)):
+        raise MalformedValidation(f"'{where}.mse': expected a number (MSE in {UNITS[where.rsplit('.', 1)[1]]}), "
+                                  f"got {mse!r:.40}")
+    return float(mse)
+
+
+def check_run(validation: dict, thresholds: Thresholds, run: str | None = None) -> RunVerdict:
+    """Pure: one run's validation figures against its thresholds (``run``: its name, else the document's).
+
+    Raises ``MalformedValidation`` when the document is not shaped as validate writes it.  A run with
+    no figure to check fails, unless validation.json says why each way was skipped (no encoder)."""
+    if not isinstance(validation, dict):
+        raise MalformedValidation(f"expected a JSON object, got {type(validation).__name__}")
+    run = run or validation.get("run")
+    if not isinstance(run, str):
+        raise MalformedValidation(f"'run': expected the run's name, got {run!r:.40}")
     checks = []
     for way in WAYS:
+        signals = _block(_block(validation, way), "signals")
         for sig in SIGNALS:
-            e = validation.get(way, {}).get("signals", {}).get(sig)
-            limit = thresholds.get(way, {}).get(sig)
-            if e is None and limit is None:
+            if signals.get(sig) is None:      # not logged (e.g. no current sensor): nothing to gate
                 continue
-            if e is None:
-                # Not logged (e.g. no current sensor): nothing to gate.
-                continue
-            checks.append(Check(run, way, sig, e.get("mse"), limit))
-    skipped = tuple(way for way in WAYS if way in (validation.get("skipped") or {}))
+            checks.append(Check(run, way, sig, _mse(signals[sig], f"{way}.signals.{sig}"),
+                                thresholds.get(way, {}).get(sig)))
+    skipped = tuple(way for way in WAYS if way in _block(validation, "skipped"))
+    if not checks and len(skipped) < len(WAYS):
+        return RunVerdict(run, (), problem="validation.json holds no MSE figures to gate "
+                                           "(expected replay/closed_loop signals; re-run pdr validate)")
     return RunVerdict(run, tuple(checks), skipped=skipped)
 
 
@@ -184,14 +220,41 @@ def run_dirs(processed: Path) -> list[Path]:
                   if p.is_dir() and not p.name.startswith(".") and (p / "rig.json").is_file())
 
 
+def _verdict(root: Path, thresholds: ThresholdFile) -> RunVerdict:
+    """One run folder's verdict; a validation.json that cannot be read or is malformed fails that run alone."""
+    path = root / "validation.json"
+    if not path.is_file():
+        return RunVerdict(root.name, (), problem="no validation.json (pipeline failed before validate)")
+    try:
+        validation = json.loads(path.read_bytes().decode("utf-8"))
+    except OSError as err:
+        return RunVerdict(root.name, (), problem=f"{path}: cannot read it: {err.strerror}")
+    except UnicodeDecodeError:
+        return RunVerdict(root.name, (), problem=f"{path}: not UTF-8 text (expected validate's JSON)")
+    except json.JSONDecodeError as err:
+        return RunVerdict(root.name, (), problem=f"{path}: not valid JSON at line {err.lineno} column {err.colno}: "
+                                                 f"{err.msg} (expected validate's JSON; re-run pdr validate)")
+    except RecursionError:
+        return RunVerdict(root.name, (), problem=f"{path}: nested too deeply (expected validate's JSON)")
+    try:
+        return check_run(validation, thresholds.for_run(root.name), run=root.name)
+    except MalformedValidation as err:
+        return RunVerdict(root.name, (), problem=f"{path}: {err} (re-run pdr validate)")
+
+
+def unmatched_runs(thresholds: ThresholdFile, runs: list[str]) -> list[str]:
+    """The runs a thresholds file names that match no run folder (nor the stem of a segment's):
+    a misspelt name would otherwise gate nothing, silently."""
+    names = set(runs) | {run.rsplit("-seg", 1)[0] for run in runs}
+    return [name for name in thresholds.runs if name not in names]
+
+
 def gate(processed: Path, thresholds: ThresholdFile) -> list[RunVerdict]:
-    """Every run in ``processed/`` against its thresholds (a run without validation fails)."""
-    verdicts = []
-    for root in run_dirs(processed):
-        path = root / "validation.json"
-        if not path.is_file():
-            verdicts.append(RunVerdict(root.name, (), problem="no validation.json (pipeline failed before validate)"))
-            continue
-        validation = json.loads(path.read_text(encoding="utf-8"))
-        verdicts.append(check_run(validation, thresholds.for_run(root.name)))
-    return verdicts
+    """Every run in ``processed/`` against its thresholds (a run without validation fails), then a failing
+    verdict for each run the thresholds name that is not there."""
+    verdicts = [_verdict(root, thresholds) for root in run_dirs(processed)]
+    if not verdicts:
+        return []
+    return verdicts + [RunVerdict(name, (), problem=f"{thresholds.source} has thresholds for this run, "
+                                                    f"but {processed} holds no such run (a misspelt name?)")
+                       for name in unmatched_runs(thresholds, [v.run for v in verdicts])]

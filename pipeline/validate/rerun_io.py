@@ -6,6 +6,7 @@ Shared by the run recording (``rerun_log``) and discovery's (``discover.rerun_re
 from __future__ import annotations
 
 import functools
+import os
 import shutil
 import subprocess
 import tempfile
@@ -100,6 +101,23 @@ def _require_space(path: Path) -> None:
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
 
 
+# The rerun binary (verify, the viewer, the web viewer) sends usage events to tel.rerun.io, and flushes any
+# a viewer session left pending, unless the user's analytics config says no or CI is set (re_analytics,
+# native/pipeline.rs, 0.41: "Analytics disabled on CI"; there is no other switch).  pdr sets the latter for
+# the rerun processes it starts: a lab pipeline connects nowhere its user did not ask, and it does not
+# rewrite the user's own config (`rerun analytics disable` would, for every program).
+# FORCE_RERUN_ANALYTICS=1 in the environment still turns them on.
+ANALYTICS_OFF = ("CI", "1")
+
+
+def rerun_env(environ: dict[str, str] | None = None) -> dict[str, str]:
+    """The environment of a ``rerun`` process pdr starts: ``environ`` (default: this process's) with
+    Rerun's analytics off (``ANALYTICS_OFF``; a ``CI`` already set is kept, it has the same effect)."""
+    env = dict(os.environ if environ is None else environ)
+    env.setdefault(*ANALYTICS_OFF)
+    return env
+
+
 def rerun_executable() -> str:
     """The native ``rerun`` binary shipped in the rerun-sdk wheel.
 
@@ -121,7 +139,8 @@ def rerun_executable() -> str:
 
 def _verify(paths: list[Path]) -> str | None:
     """Run ``rerun rrd verify`` on the files; None when all pass, else the tool's last line."""
-    proc = subprocess.run([rerun_executable(), "rrd", "verify", *map(str, paths)], capture_output=True, text=True)
+    proc = subprocess.run([rerun_executable(), "rrd", "verify", *map(str, paths)], capture_output=True, text=True,
+                          env=rerun_env())
     if proc.returncode == 0:
         return None
     msg = (proc.stderr or proc.stdout).strip().splitlines()

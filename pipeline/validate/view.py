@@ -13,6 +13,7 @@
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import http.server
 import os
@@ -83,11 +84,11 @@ def recording_to_open(rrds: dict[str, Path]) -> Path:
 
 
 def open_native(path: Path) -> None:
-    from pipeline.validate.rerun_io import rerun_executable
+    from pipeline.validate.rerun_io import rerun_env, rerun_executable
 
     if not display_available():
         raise PdrError(NO_DISPLAY)
-    subprocess.Popen([rerun_executable(), str(path)])
+    subprocess.Popen([rerun_executable(), str(path)], env=rerun_env())
 
 
 class _FileHandler(http.server.BaseHTTPRequestHandler):
@@ -120,6 +121,8 @@ class WebServer:
     recording_url: str       # where the web viewer fetches the recording from
     _httpd: http.server.ThreadingHTTPServer = field(repr=False)
     _viewer: subprocess.Popen = field(repr=False)
+    port: int = 0            # the web viewer's (what --port asked, or the free one picked for 0)
+    file_port: int = 0       # the recording's
 
     def stop(self) -> None:
         self._viewer.terminate()
@@ -129,6 +132,46 @@ class WebServer:
             self._viewer.kill()
         self._httpd.shutdown()
         self._httpd.server_close()
+
+
+def _free(bind: str, port: int) -> OSError | None:
+    """None when ``port`` can be listened on at ``bind`` now, else why not (in use, not permitted)."""
+    import socket
+
+    family = socket.AF_INET6 if ":" in bind else socket.AF_INET
+    with socket.socket(family) as s:
+        try:
+            s.bind((bind, port))
+        except OSError as err:
+            return err
+    return None
+
+
+def listen_ports(bind: str, port: int) -> tuple[int, int]:
+    """The web viewer's port and the recording's (the next one), both free on ``bind`` now.
+
+    ``port`` 0 picks a free pair.  A port another program holds is refused here, by name: the viewer
+    would fail to listen on it while a check that something answers there would pass."""
+    if not 0 <= port <= 65534:
+        raise PdrError(f"expected a port from 1 to 65534 (the recording is served on the next one), or 0 for "
+                       f"any free pair, got {port}", key="--port")
+    if port == 0:
+        import socket
+
+        for _ in range(50):
+            with socket.socket(socket.AF_INET6 if ":" in bind else socket.AF_INET) as s:
+                s.bind((bind, 0))
+                candidate = s.getsockname()[1]
+            if candidate < 65535 and _free(bind, candidate) is None and _free(bind, candidate + 1) is None:
+                return candidate, candidate + 1
+        raise PdrError(f"found no two adjacent free ports on {bind}: give one with --port", key="--port")
+    for p, what in ((port, "the web viewer"), (port + 1, "the recording (--port + 1)")):
+        err = _free(bind, p)
+        if err is not None:
+            said = "in use by another program" if err.errno == errno.EADDRINUSE else err.strerror
+            raise PdrError(f"cannot serve {what} on {bind}:{p}: {said}; choose another with --port "
+                           "(0 picks a free one)", key="--port")
+    return port, port + 1
 
 
 def _wait_listening(host: str, port: int, proc: subprocess.Popen, timeout: float = 20.0) -> None:
@@ -146,10 +189,12 @@ def _wait_listening(host: str, port: int, proc: subprocess.Popen, timeout: float
 
 
 def serve_web(path: Path, bind: str = "127.0.0.1", port: int = 9090, file_port: int | None = None) -> WebServer:
-    """Serve ``path`` over HTTP on ``file_port`` (default ``port + 1``) and Rerun's web viewer on ``port``."""
-    from pipeline.validate.rerun_io import rerun_executable
+    """Serve ``path`` over HTTP on ``file_port`` (default ``port + 1``) and Rerun's web viewer on ``port``
+    (0: a free pair, see ``listen_ports``)."""
+    from pipeline.validate.rerun_io import rerun_env, rerun_executable
 
-    file_port = port + 1 if file_port is None else file_port
+    if file_port is None:
+        port, file_port = listen_ports(bind, port)
     handler = type("Handler", (_FileHandler,), {"files": {f"/{path.name}": Path(path)}})
     try:
         httpd = http.server.ThreadingHTTPServer((bind, file_port), handler)
@@ -159,7 +204,7 @@ def serve_web(path: Path, bind: str = "127.0.0.1", port: int = 9090, file_port: 
     host = "127.0.0.1" if bind in ("0.0.0.0", "::") else bind
     recording_url = f"http://{host}:{file_port}/{urllib.parse.quote(path.name)}"
     viewer = subprocess.Popen([rerun_executable(), "--serve-web", "--bind", bind, "--web-viewer-port", str(port),
-                               recording_url], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                               recording_url], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=rerun_env())
     try:
         _wait_listening(host, port, viewer)
     except PdrError:
@@ -168,4 +213,5 @@ def serve_web(path: Path, bind: str = "127.0.0.1", port: int = 9090, file_port: 
         httpd.server_close()
         raise
     url = f"http://{host}:{port}/?url={urllib.parse.quote(recording_url, safe='')}"
-    return WebServer(url=url, recording_url=recording_url, _httpd=httpd, _viewer=viewer)
+    return WebServer(url=url, recording_url=recording_url, _httpd=httpd, _viewer=viewer, port=port,
+                     file_port=file_port)

@@ -11,6 +11,7 @@ import pytest
 from typer.testing import CliRunner
 
 from pipeline.cli import app
+from pipeline.errors import PdrError
 from pipeline.record.capture import STOP_INTERRUPT
 from pipeline.record.session import STOP_TERMINATED, RecordOptions, record
 from pipeline.rig.serve import PtyRig
@@ -40,6 +41,15 @@ def test_refusals_name_what_was_expected(tmp_path):
         assert res.exit_code != 0 and expected in str(res.exception), (args, res.exception)
     assert (tmp_path / "taken.csv").read_bytes() == b"t_ms,counts\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["taken.csv"]
+
+
+@pytest.mark.parametrize("name", ["x\n", "x\ty", "x\r", "\nx", "x\x1b[31m", "x y", ".hidden", "x\u00e9"])
+def test_names_with_control_characters_are_refused_by_one_rule_and_create_nothing(tmp_path, name):
+    res = runner.invoke(app, ["record", "/dev/null", "--name", name, "--raw", str(tmp_path), "--no-view"])
+    assert res.exit_code != 0 and isinstance(res.exception, PdrError), res.output
+    assert str(res.exception) == ("key 'NAME': expected a recording name of letters, digits, '_', '-' or '.', "
+                                  f"got {name!r}")
+    assert list(tmp_path.iterdir()) == []
 
 
 @pytest.mark.parametrize("sig, said_reason", [(signal.SIGINT, STOP_INTERRUPT), (signal.SIGTERM, STOP_TERMINATED)])

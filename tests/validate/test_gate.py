@@ -92,13 +92,14 @@ def test_gate_command_passes_clean_runs_and_fails_naming_the_biased_one(tmp_path
     processed = tmp_path / "processed"
     thresholds = tmp_path / "thresholds.toml"
     thresholds.write_text(THRESHOLDS)
-    validate_run(synthetic_run(processed, "clean", kin=synthetic_kinematics(current_noise_a=0.02)),
-                 rrd=False, png=False)
+    for name in ("clean", "loose"):         # every run the thresholds name is there
+        validate_run(synthetic_run(processed, name, kin=synthetic_kinematics(current_noise_a=0.02)),
+                     rrd=False, png=False)
     runner = CliRunner()
     args = ["gate", "--processed", str(processed), "--thresholds", str(thresholds)]
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
-    assert "all 1 runs within their thresholds" in result.output
+    assert "all 2 runs within their thresholds" in result.output
     biased = default_config().plant_spec((make_effect("driver_voltage_drop", {"Vd": 0.6}),))
     validate_run(synthetic_run(processed, "biased", kin=synthetic_kinematics(biased, current_noise_a=0.02)),
                  rrd=False, png=False)

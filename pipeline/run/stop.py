@@ -1,0 +1,72 @@
+"""Stopping ``pdr run`` from outside: Ctrl-C and SIGTERM end it with one line, keeping what is finished.
+
+The terminal sends Ctrl-C's SIGINT to every process of the foreground group:
+the forkserver (while it imports the heavy modules) and the pool's workers
+would each print a traceback of their own, and the parent then fails to talk
+to them (``EOFError`` in ``_adjust_process_count``).  So the children ignore
+SIGINT (``children_ignore_sigint``: the disposition passes through the
+forkserver's exec to every worker) and the parent alone decides: it stops the
+workers, removes the temporaries they leave (outputs are written by rename,
+so none is torn), and says so.  SIGTERM raises ``Stopped`` in the parent the
+same way, with its own words and exit status (128 + 15, as a shell reports a
+process killed by it).
+"""
+
+from __future__ import annotations
+
+import signal
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+INTERRUPTED = "interrupted: the recordings finished so far are kept; pdr run again does the rest"
+TERMINATED = "terminated (SIGTERM): the recordings finished so far are kept; pdr run again does the rest"
+
+
+class Stopped(KeyboardInterrupt):
+    """A stop asked from outside; ``exit_status`` is what the command exits with."""
+
+    def __init__(self, message: str = INTERRUPTED, exit_status: int = 130) -> None:
+        super().__init__(message)
+        self.exit_status = exit_status
+
+
+def _in_main_thread() -> bool:
+    return threading.current_thread() is threading.main_thread()
+
+
+@contextmanager
+def children_ignore_sigint() -> Iterator[None]:
+    """SIGINT ignored while child processes are started (they inherit it); the parent's handler after."""
+    if not _in_main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def _raise_terminated(signum: int, frame: object) -> None:
+    raise Stopped(TERMINATED, 128 + signum)
+
+
+@contextmanager
+def stop_signals() -> Iterator[None]:
+    """For the duration: SIGTERM raises ``Stopped`` in the main thread (the cleanup of Ctrl-C then runs),
+    and SIGINT raises ``KeyboardInterrupt`` even when it was ignored from the start.  A shell without job
+    control starts ``pdr run &`` with SIGINT ignored, which Python keeps: a script's ``kill -INT`` (or a
+    Ctrl-C to its whole group) then went unheard and the run carried on to the end."""
+    if not _in_main_thread():
+        yield
+        return
+    previous_term = signal.signal(signal.SIGTERM, _raise_terminated)
+    previous_int = signal.getsignal(signal.SIGINT)
+    if previous_int == signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous_term)
+        signal.signal(signal.SIGINT, previous_int)
