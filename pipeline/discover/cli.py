@@ -129,7 +129,6 @@ def ingest_and_derive(csv: Path, processed: Path) -> list:
 
 def _discover_many(recordings: list[str], out: Path, json_out: bool, cluster: str, jobs: int, rrd: bool) -> None:
     import json
-    import sys
 
     from pipeline.discover.across import findings
     from pipeline.discover.many import discover_many
