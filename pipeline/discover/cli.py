@@ -166,7 +166,7 @@ def _raw_source(report_path: Path) -> Path | None:
 
 def _where(doc: dict, written: dict[str, Path]) -> str:
     """Where the report is and what to do with the effects found."""
-    lines = [f"report: {written['markdown']} (figures and .rrd beside it once drawn)"]
+    lines = [f"report: {written['markdown']} (its figures are drawn next)"]
     if doc.get("adopted"):
         lines.append(f"adopted into {doc['adopted']}")
     elif doc["effects"]:
