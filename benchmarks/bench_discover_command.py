@@ -118,7 +118,8 @@ def main(variants: list[tuple[str, Path, dict[str, str]]] | None = None, indices
     for name, _, _ in variants:
         runs = [r["runs"][name] for r in rows]
         answers = [r["answer_s"] for r in runs if r["answer_s"] is not None]
-        summary[name] = {"answer_s": _stats(answers) if answers else None, "wall_s": _stats([r["wall_s"] for r in runs]),
+        summary[name] = {"answer_s": _stats(answers) if answers else None,
+                         "wall_s": _stats([r["wall_s"] for r in runs]),
                          "cpu_s": _stats([r["cpu_s"] for r in runs]),
                          "answer_over_2s": sum(a > 2 for a in answers), "over_10s": sum(r["wall_s"] > 10 for r in runs),
                          "same_decision": sum(r.get("same_decision", True) for r in runs),

@@ -180,13 +180,14 @@ def main() -> None:
     if not args.shipped:
         from benchmarks import discovery_randomised
 
+        if args.seed is None and (args.partial_summary or args.only):
+            ap.error("--partial-summary and --only need the --seed of the run they summarise or repeat")
         if args.partial_summary:
-            if args.seed is None:
-                ap.error("--partial-summary needs the --seed of the stopped run")
             discovery_randomised.summarise_partial(args.seed, args.out or discovery_randomised.DEFAULT_OUT,
                                                    args.recordings)
             return
-        discovery_randomised.main(args.recordings, seed_for_run(args.seed, "randomised matrix"), args.out or discovery_randomised.DEFAULT_OUT,
+        discovery_randomised.main(args.recordings, seed_for_run(args.seed, "randomised matrix"),
+                                  args.out or discovery_randomised.DEFAULT_OUT,
                                   args.workers, args.timed_every,
                                   [int(i) for i in args.only.split(",")] if args.only else None)
         return

@@ -216,7 +216,8 @@ def print_summary(s: dict) -> None:
     pd.set_option("display.width", 250)
     pd.set_option("display.max_columns", 30)
     print(f"\nRight: {rate_text(s['right'], s['recordings'])}; by kind: {s['right_by_kind']}")
-    print(f"Effect named on a recording without a catalogued one: {rate_text(s['effect_named_without_one'], s['without_one'])}; "
+    named = rate_text(s["effect_named_without_one"], s["without_one"])
+    print(f"Effect named on a recording without a catalogued one: {named}; "
           f"discover failed: {s['errors']}")
     print("\nVerdicts (rows: what is hidden):")
     print(pd.DataFrame(s["verdicts_by_kind"]).T.fillna(0).astype(int))
