@@ -1,15 +1,16 @@
-"""``pdr discover RAW.csv`` as a user waits for it, whole command, before vs after in the same run.
+"""``pdr discover RAW.csv --json`` as a user waits for it, until its answer and whole, before vs after in the same run.
 
 Draws recordings of the randomised rig (``pipeline.rig.randomised``, the seed and indices of
 ``make bench-discovery``), then runs each variant's ``pdr discover RAW.csv --json`` in a fresh
 process, one command at a time (as a user runs it), the variants interleaved per recording in
-a rotating order so a change of the machine's load hits them alike.  Wall time by the clock,
-CPU as user + system of the command and every process it waited for (the drawing process
-included); the 1-minute load average before each command is recorded.  The variants'
+a rotating order so a change of the machine's load hits them alike.  Wall time by the clock, twice:
+until the JSON object is complete on stdout (the answer) and until the command ends (figures and
+.rrd drawn); CPU as user + system of the command and every process it waited for; the 1-minute
+load average before each command is recorded.  The variants'
 decisions (verdict, effects and their parameters) are compared to the first variant's.
 
     python -m benchmarks.bench_discover_command --variant before=/path/to/other/.venv/bin/pdr \\
-        --variant after=.venv/bin/pdr [--variant after-here=.venv/bin/pdr:PDR_DISCOVER_DRAW=here] \\
+        --variant after=.venv/bin/pdr [--variant after-env=.venv/bin/pdr:SOME_ENV=VALUE] \\
         [--indices 0,10,...] [--seed 15] [--out benchmarks/results/discover_command.json]
 
 Without ``--variant`` (as ``make bench`` runs it): this install's ``pdr`` alone.
@@ -45,21 +46,37 @@ def _parse_variant(text: str) -> tuple[str, Path, dict[str, str]]:
 
 
 def run_command(pdr: Path, csv: Path, processed: Path, env: dict[str, str]) -> dict:
-    """One ``pdr discover RAW.csv --json`` in a fresh process: its decision, wall and CPU seconds."""
+    """One ``pdr discover RAW.csv --json`` in a fresh process: its decision; the wall seconds until the JSON
+    object was complete on stdout (what a user or a script waits for) and until the command ended (the
+    figures and the .rrd drawn); its CPU seconds."""
     load = os.getloadavg()[0]
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    proc = subprocess.run([str(pdr), "discover", str(csv), "--json", "--processed", str(processed)],
-                          capture_output=True, text=True, cwd=csv.parent, env={**os.environ, **env})
+    with tempfile.TemporaryFile("w+") as err:
+        proc = subprocess.Popen([str(pdr), "discover", str(csv), "--json", "--processed", str(processed)],
+                                stdout=subprocess.PIPE, stderr=err, text=True, cwd=csv.parent,
+                                env={**os.environ, **env})
+        answer_s, lines, doc = None, [], None
+        for line in proc.stdout:
+            lines.append(line)
+            if doc is None and line.rstrip("\n") == "}":      # the object's last line (report.dumps' layout)
+                doc = json.loads("".join(lines))
+                answer_s = time.perf_counter() - t0
+        proc.wait()
+        err.seek(0)
+        stderr = err.read()
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
-    row = {"wall_s": wall, "cpu_s": cpu, "load_before": load}
-    if proc.returncode != 0:
-        return row | {"error": (proc.stderr.strip().splitlines() or ["?"])[-1]}
-    doc = json.loads(proc.stdout)
+    row = {"answer_s": answer_s, "wall_s": wall, "cpu_s": cpu, "load_before": load}
+    if proc.returncode != 0 or doc is None:
+        return row | {"error": (stderr.strip().splitlines() or ["?"])[-1]}
     return row | {"verdict": doc["verdict"], "effects": {e["name"]: e["parameters"] for e in doc["effects"]},
                   "stopped_for_time": bool(doc.get("stopped_for_time"))}
+
+
+def _answer(run: dict) -> str:
+    return f"{run['answer_s']:5.2f} s" if run["answer_s"] is not None else "  -   "
 
 
 def _stats(values: list[float]) -> dict:
@@ -93,14 +110,18 @@ def main(variants: list[tuple[str, Path, dict[str, str]]] | None = None, indices
                     (first.get("verdict"), first.get("effects"), first.get("error"))
             rows.append(row)
             print(f"{i:4d} {row['samples']:6d} samples  " + "  ".join(
-                f"{n} {row['runs'][n]['wall_s']:5.2f} s wall {row['runs'][n]['cpu_s']:5.2f} s CPU"
+                f"{n} {_answer(row['runs'][n])} answer {row['runs'][n]['wall_s']:5.2f} s wall "
+                f"{row['runs'][n]['cpu_s']:5.2f} s CPU"
                 + ("" if row["runs"][n].get("same_decision", True) else " (other decision)")
                 for n, _, _ in variants) + f"  load {first['load_before']:.1f}", flush=True)
     summary = {}
     for name, _, _ in variants:
         runs = [r["runs"][name] for r in rows]
-        summary[name] = {"wall_s": _stats([r["wall_s"] for r in runs]), "cpu_s": _stats([r["cpu_s"] for r in runs]),
-                         "over_2s": sum(r["wall_s"] > 2 for r in runs), "over_10s": sum(r["wall_s"] > 10 for r in runs),
+        answers = [r["answer_s"] for r in runs if r["answer_s"] is not None]
+        summary[name] = {"answer_s": _stats(answers) if answers else None,
+                         "wall_s": _stats([r["wall_s"] for r in runs]),
+                         "cpu_s": _stats([r["cpu_s"] for r in runs]),
+                         "answer_over_2s": sum(a > 2 for a in answers), "over_10s": sum(r["wall_s"] > 10 for r in runs),
                          "same_decision": sum(r.get("same_decision", True) for r in runs),
                          "stopped_for_time": sum(r.get("stopped_for_time", False) for r in runs)}
     loads = [r["runs"][n]["load_before"] for r in rows for n, _, _ in variants]
@@ -108,8 +129,10 @@ def main(variants: list[tuple[str, Path, dict[str, str]]] | None = None, indices
               "cores": os.cpu_count(), "load_before": _stats(loads) | {"min": float(np.min(loads))},
               "summary": summary, "recordings": rows}
     for name, s in summary.items():
-        print(f"{name:12s} wall median {s['wall_s']['median']:.2f} s, max {s['wall_s']['max']:.2f} s; "
-              f"CPU median {s['cpu_s']['median']:.2f} s, max {s['cpu_s']['max']:.2f} s; over 2 s: {s['over_2s']}, "
+        answer = (f"JSON complete median {s['answer_s']['median']:.2f} s, max {s['answer_s']['max']:.2f} s "
+                  f"(over 2 s: {s['answer_over_2s']}); " if s["answer_s"] else "no JSON; ")
+        print(f"{name:12s} {answer}whole command median {s['wall_s']['median']:.2f} s, max {s['wall_s']['max']:.2f} s; "
+              f"CPU median {s['cpu_s']['median']:.2f} s, max {s['cpu_s']['max']:.2f} s; "
               f"over 10 s: {s['over_10s']}; same decision as {variants[0][0]}: {s['same_decision']}/{len(rows)}; "
               f"stopped for time: {s['stopped_for_time']}")
     print(f"load average (1 min) before the commands: min {result['load_before']['min']:.1f}, "

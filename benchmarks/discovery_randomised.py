@@ -20,6 +20,9 @@ finished, not redone, by running the same command again.
 
     python -m benchmarks.discovery_matrix [--recordings N] [--seed S] [--timed-every K] [--out FILE]
                                           [--partial-summary]
+
+Without ``--seed`` the draw's seed is fresh (printed, and written with the results): the protocol of
+docs/BENCHMARKS.md.
 """
 
 from __future__ import annotations
@@ -37,6 +40,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from benchmarks.protocol import rate_interval, rate_text
 from pipeline.model.effects import CATALOGUE
 
 DEFAULT_OUT = Path("benchmarks/results/discovery_randomised.json")
@@ -179,6 +183,7 @@ def summarise(rows: list[dict]) -> dict:
     agree = timed["command_agrees"].dropna() if "command_agrees" in timed else pd.Series(dtype=bool)
     return {
         "recordings": len(df), "right": int(df["right"].sum()), "right_fraction": float(df["right"].mean()),
+        "right_interval_95": rate_interval(int(df["right"].sum()), len(df)),
         "right_by_kind": {k: f"{int(g['right'].sum())}/{len(g)}" for k, g in df.groupby("kind")},
         "effect_named_without_one": int(no_effect["found"].map(bool).sum()), "without_one": len(no_effect),
         "errors": int((df["verdict"] == "error").sum()),
@@ -210,8 +215,9 @@ def summarise(rows: list[dict]) -> dict:
 def print_summary(s: dict) -> None:
     pd.set_option("display.width", 250)
     pd.set_option("display.max_columns", 30)
-    print(f"\nRight: {s['right']} of {s['recordings']} ({100 * s['right_fraction']:.1f} %); by kind: {s['right_by_kind']}")
-    print(f"Effect named on a recording without a catalogued one: {s['effect_named_without_one']} of {s['without_one']}; "
+    print(f"\nRight: {rate_text(s['right'], s['recordings'])}; by kind: {s['right_by_kind']}")
+    named = rate_text(s["effect_named_without_one"], s["without_one"])
+    print(f"Effect named on a recording without a catalogued one: {named}; "
           f"discover failed: {s['errors']}")
     print("\nVerdicts (rows: what is hidden):")
     print(pd.DataFrame(s["verdicts_by_kind"]).T.fillna(0).astype(int))
@@ -311,5 +317,5 @@ def main(recordings: int, seed: int, out: Path, workers: int = 2, timed_every: i
     write_json(out, {"seed": seed, "complete": True, "wanted": recordings, "summary": summary,
                      "recordings": [rows[i] for i in indices]})
     partial.unlink()
-    print(f"\nwrote {out}")
+    print(f"\nwrote {out} (seed {seed}: repeat this run with --seed {seed})")
     return summary

@@ -6,11 +6,9 @@ happen inside the command functions so ``pdr --help`` stays instant.
 
 from __future__ import annotations
 
-import atexit
 import gc
 import os
 import sys
-import threading
 
 import typer
 
@@ -87,27 +85,3 @@ def main() -> None:
             raise
         print(f"pdr: error: {describe_failure(err)}", file=sys.stderr)
         sys.exit(2 if isinstance(err, OSError) else 3)
-
-
-def console() -> None:
-    """The ``pdr`` script: ``main``, then out without the interpreter's teardown when no other thread runs.
-
-    The teardown clears every module and frees every object one by one (~0.05 s after ``pdr discover``,
-    whose whole command is ~2 s), only for the process's exit to free it all at once.  What an exit must
-    do is done first: the atexit handlers (rerun's flush, multiprocessing's children, logging's files)
-    and the flush of stdout and stderr.  With another thread alive (a dask client, a serial reader) the
-    interpreter's own exit, which waits for it, is kept."""
-    try:
-        main()
-        code = 0
-    except SystemExit as done:
-        code = done.code
-    if threading.active_count() > 1 or not (code is None or isinstance(code, int)):
-        sys.exit(code)
-    atexit._run_exitfuncs()             # what sys.exit would run before the teardown
-    try:
-        sys.stdout.flush()
-        sys.stderr.flush()
-    except (OSError, ValueError):      # a closed pipe: the interpreter says 120 when it cannot flush
-        code = code or 120
-    os._exit(code or 0)

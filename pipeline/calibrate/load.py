@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from pipeline.calibrate.structure import declared_model
+from pipeline.derive.stage import ingest_and_derive
 from pipeline.discover.measurement import Measurement, measurement_from_kinematics
 from pipeline.errors import PdrError
 from pipeline.model.params import ModelParams
@@ -17,13 +18,7 @@ def _runs(recording: str, processed: Path, tmp: Path) -> list[RunPaths]:
     if item.suffix.lower() == ".csv":
         if not item.is_file():
             raise PdrError("no such recording", path=recording)
-        from pipeline.derive.stage import derive_run
-        from pipeline.ingest.stage import ingest_recording
-
-        runs = ingest_recording(item, tmp / f"{len(list(tmp.iterdir()))}").runs
-        for paths in runs:
-            derive_run(paths)
-        return runs
+        return ingest_and_derive(item, tmp / f"{len(list(tmp.iterdir()))}")
     return resolve_runs(recording, processed)
 
 

@@ -10,6 +10,7 @@ computed (no current logged, no guard reached, too few samples) is said in
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from dataclasses import dataclass
 from typing import Any
 
@@ -299,3 +300,14 @@ def derive_and_write(paths: RunPaths) -> DerivedTables:
     summary = {"run": paths.name, **tables.summary}
     write_json(paths.summary, summary)
     return DerivedTables(tables.kinematics, tables.phases, tables.overshoot, tables.cycles, summary)
+
+
+def ingest_and_derive(csv: Path, processed: Path) -> list[RunPaths]:
+    """A raw CSV ingested into ``processed`` and each of its runs derived (what discover and calibrate
+    do with a raw CSV given on the command line); the runs' paths."""
+    from pipeline.ingest.stage import ingest_recording
+
+    runs = ingest_recording(csv, processed).runs
+    for paths in runs:
+        derive_run(paths)
+    return runs

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import gc
+import sys
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator, Optional
@@ -69,9 +70,9 @@ def discover(
     refuse_a_missing_csv(recordings)
     import tempfile
 
+    from pipeline.derive.stage import ingest_and_derive
     from pipeline.discover.adopt import adopt as adopt_effects
-    from pipeline.discover.second_process import SecondProcess, use_second_process
-    from pipeline.discover.report import dumps, write_outputs
+    from pipeline.discover.report import dumps, write_figures, write_report
     from pipeline.discover.stage import augmented_effects, discover_run, segment_to_discover
     from pipeline.errors import PdrError
     from pipeline.runs import DISCOVERY_DIR, resolve_runs
@@ -84,11 +85,9 @@ def discover(
         return
     recording = recordings[0]
     item = Path(recording)
-    # ingesting overlaps numba's set-up, drawing's imports the decision (second_process)
-    with SecondProcess(background=use_second_process()) as second, \
-            tempfile.TemporaryDirectory(prefix="pdr-discover-") as tmp:
+    with tempfile.TemporaryDirectory(prefix="pdr-discover-") as tmp:
         if item.suffix.lower() == ".csv" and item.is_file():
-            runs = second.ingest(item, Path(tmp))
+            runs = ingest_and_derive(item, Path(tmp))
             source_csv: Path | None = item
         else:
             runs = resolve_runs(recording, processed)
@@ -98,11 +97,11 @@ def discover(
         # one recording, one answer: one segment when the board reset mid-file
         paths = segment_to_discover(runs)
         d, doc = discover_run(paths, recording=str(recording))
-        if len(runs) > 1:
-            doc["segments"] = {"used": paths.name, "others": [p.name for p in runs if p != paths]}
-        root = processed if item.suffix.lower() == ".csv" or not item.is_dir() else item.parent
-        out_dir = out if out is not None else Path(root) / DISCOVERY_DIR / paths.name
-        written = write_outputs(out_dir, d, doc, rrd=not no_rrd, drawer=second)
+    if len(runs) > 1:
+        doc["segments"] = {"used": paths.name, "others": [p.name for p in runs if p != paths]}
+    root = processed if item.suffix.lower() == ".csv" or not item.is_dir() else item.parent
+    out_dir = out if out is not None else Path(root) / DISCOVERY_DIR / paths.name
+    written, report_md = write_report(out_dir, d, doc, rrd=not no_rrd)
     if adopt:
         if not d.effects:
             doc["adopted"] = None
@@ -112,20 +111,14 @@ def discover(
         else:
             doc["adopted"] = str(adopt_effects(source_csv, augmented_effects(d)))
     doc["seconds"] = round(d.seconds, 3)      # printed, not written: the files stay byte-identical on a re-run
-    if json_out:
-        typer.echo(dumps(doc))
-        return
-    typer.echo(_summary(doc))
-    typer.echo(f"report: {written['markdown']}")
-    if doc.get("adopted"):
-        typer.echo(f"adopted into {doc['adopted']}")
-    elif d.effects:
-        typer.echo(f"[effects] snippet: {written['toml']} (add --adopt to write it into the rig's TOML)")
+    # the answer first, flushed: the figures and the .rrd (about a second of drawing) come after it
+    typer.echo(dumps(doc) if json_out else _summary(doc) + "\n" + _where(doc, written))
+    sys.stdout.flush()
+    write_figures(written, d, report_md, rrd=not no_rrd)
 
 
 def _discover_many(recordings: list[str], out: Path, json_out: bool, cluster: str, jobs: int, rrd: bool) -> None:
     import json
-    import sys
 
     from pipeline.discover.across import findings
     from pipeline.discover.many import discover_many
@@ -159,6 +152,16 @@ def _raw_source(report_path: Path) -> Path | None:
         return None
     src = rec.get("source") if isinstance(rec, dict) else rec
     return Path(src) if isinstance(src, str) and Path(src).is_file() else None
+
+
+def _where(doc: dict, written: dict[str, Path]) -> str:
+    """Where the report is and what to do with the effects found."""
+    lines = [f"report: {written['markdown']} (its figures are drawn next)"]
+    if doc.get("adopted"):
+        lines.append(f"adopted into {doc['adopted']}")
+    elif doc["effects"]:
+        lines.append(f"[effects] snippet: {written['toml']} (add --adopt to write it into the rig's TOML)")
+    return "\n".join(lines)
 
 
 def _summary(doc: dict) -> str:

@@ -3,7 +3,7 @@ PNG plots, and a Rerun recording with measurement, base and augmented model over
 (``rerun_report``).
 
 Everything is rendered from a ``Discovery`` (pure functions returning text or bytes);
-``write_outputs`` is the only function that touches the disk, atomically.  PNGs carry
+``write_report`` and ``write_figures`` are the only functions that touch the disk, atomically.  PNGs carry
 no timestamp or version metadata, so a re-run gives identical bytes.
 """
 
@@ -131,13 +131,14 @@ def localisation_png(d: Discovery) -> bytes:
 
 
 def _plain_log_formatter(**kwargs):
-    """Log-axis tick labels as plain numbers ("0.1", "1", "20"), which labels the same ticks as matplotlib's
-    default; that one writes them as mathtext ($10^{-1}$), whose parsing was half this figure's drawing."""
+    """Log-axis tick labels as plain numbers ("0.1", "1", "20") on the ticks matplotlib's ``LogFormatter``
+    labels; the default formatter writes them as mathtext ($10^{-1}$), whose parsing was half this figure's
+    drawing."""
     from matplotlib.ticker import LogFormatter
 
     class PlainLogFormatter(LogFormatter):
-        def _num_to_string(self, x, vmin, vmax):
-            return f"{x:g}"
+        def __call__(self, x, pos=None):
+            return f"{x:g}" if super().__call__(x, pos) else ""
 
     return PlainLogFormatter(**kwargs)
 
@@ -286,21 +287,23 @@ def _tables_md(d: Discovery) -> list[str]:
     return out
 
 
-def write_outputs(out_dir: Path, d: Discovery, doc: dict, *, rrd: bool = True, drawer=None) -> dict[str, Path]:
-    """Every output of one discovery into ``out_dir`` (atomic writes); returns the paths.  The
-    figures and the .rrd are drawn by ``drawer`` (``second_process.SecondProcess``)."""
+def write_report(out_dir: Path, d: Discovery, doc: dict, *, rrd: bool = True) -> tuple[dict[str, Path], str]:
+    """The JSON, the ``[effects]`` snippet and the Markdown report into ``out_dir`` (atomic writes): what
+    the command's answer names, written before it is printed; the paths of every output (the figures' and,
+    with ``rrd``, the .rrd's too, for ``write_figures``) and the Markdown."""
     out_dir = Path(out_dir)
-    paths = {k: out_dir / v for k, v in FILES.items()}
+    paths = {k: out_dir / v for k, v in FILES.items() if rrd or k != "rrd"}
     write_json(paths["json"], doc)
     write_text(paths["toml"], effects_toml_snippet(augmented_effects(d)))
     md = markdown(d, doc)
     write_text(paths["markdown"], md)
-    if drawer is None:
-        write_figures(paths, d, md, rrd=rrd)
-    else:
-        drawer.draw(paths, d, md, rrd)
-    if not rrd:
-        paths.pop("rrd")
+    return paths, md
+
+
+def write_outputs(out_dir: Path, d: Discovery, doc: dict, *, rrd: bool = True) -> dict[str, Path]:
+    """Every output of one discovery into ``out_dir`` (atomic writes); returns the paths."""
+    paths, md = write_report(out_dir, d, doc, rrd=rrd)
+    write_figures(paths, d, md, rrd=rrd)
     return paths
 
 
@@ -308,12 +311,10 @@ FIGURES = {"signals_png": signals_png, "residuals_png": residuals_png, "candidat
            "localisation_png": localisation_png}
 
 
-def write_figures(paths: dict[str, Path], d: Discovery, report_md: str, *, rrd: bool,
-                  figures: tuple[str, ...] = tuple(FIGURES)) -> None:
-    """The PNGs named in ``figures`` (``FIGURES``' keys: all four unless told) and (``rrd``) the Rerun
-    recording, at ``paths`` (``FILES``' keys)."""
-    for key in figures:
-        write_bytes(paths[key], FIGURES[key](d))
+def write_figures(paths: dict[str, Path], d: Discovery, report_md: str, *, rrd: bool) -> None:
+    """The four PNGs and (``rrd``) the Rerun recording, at ``paths`` (``FILES``' keys)."""
+    for key, draw in FIGURES.items():
+        write_bytes(paths[key], draw(d))
     if rrd:
         write_rrd(paths["rrd"], d, report_md)
 

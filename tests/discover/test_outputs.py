@@ -33,15 +33,27 @@ def _effect(name, value):
 
 @pytest.fixture(scope="module")
 def delay_run(tmp_path_factory):
-    """A recording with a hidden loop delay, discovered once through the CLI (JSON on stdout)."""
+    """A recording with a hidden loop delay, discovered once by the ``pdr`` command (JSON on stdout),
+    read as a pipe reads it: the object is complete before the figures and the .rrd are drawn, so at
+    that moment the files it names are already written, and nothing else follows it on stdout."""
     work = tmp_path_factory.mktemp("delay")
     _, _, csv = rig_kinematics((_effect("loop_delay", 0.05),), seed=8, work=work)
     out = work / "out"
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setenv("PDR_DISCOVER_DRAW", "here")               # figures drawn in this process
-        res = runner.invoke(app, ["discover", str(csv), "--json", "--out", str(out)])
-    assert res.exit_code == 0, res.output
-    return csv, out, json.loads(res.stdout)
+    proc = subprocess.Popen([str(Path(sys.executable).with_name("pdr")), "discover", str(csv), "--json",
+                             "--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    text, doc = "", None
+    while doc is None:
+        line = proc.stdout.readline()
+        assert line, proc.stderr.read()
+        text += line
+        if line.rstrip("\n") == "}":                        # the object's last line
+            doc = json.loads(text)
+            answered_with = {p.name for p in out.iterdir()}
+    rest, err = proc.communicate(timeout=120)
+    assert proc.returncode == 0, err
+    assert rest == ""
+    assert {"discovery.json", "effects.toml", "report.md"} <= answered_with
+    return csv, out, doc
 
 
 def test_json_contract(delay_run):
@@ -107,7 +119,6 @@ def test_rrd_has_measurement_models_and_residuals(delay_run):
 @pytest.mark.slow
 def test_rerun_gives_identical_files(delay_run, tmp_path, monkeypatch):
     csv, out, _ = delay_run
-    monkeypatch.setenv("PDR_DISCOVER_DRAW", "process")         # figures drawn by a second process this time
     res = runner.invoke(app, ["discover", str(csv), "--out", str(tmp_path), "--no-rrd"])
     assert res.exit_code == 0, res.output
     for name in ("discovery.json", "effects.toml", "report.md", "signals.png", "residuals.png",

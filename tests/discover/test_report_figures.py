@@ -2,14 +2,12 @@
 
 import io
 import json
-import os
 
 import numpy as np
 import pytest
 from PIL import Image
 
 from pipeline.discover.candidates import parameter_of
-from pipeline.discover.second_process import can_fork
 from pipeline.discover.report import OUTCOME_COLORS, candidates_png, markdown, outcomes
 from pipeline.discover.stage import discover, discovery_json
 from pipeline.model.effects import make_effect
@@ -64,72 +62,17 @@ def _figures(out):
     return {p.name: p.read_bytes() for p in sorted(out.iterdir()) if p.suffix == ".png"}
 
 
-def test_a_second_process_draws_the_same_figures_and_one_that_died_is_replaced(backlash_discovery, tmp_path):
-    from pipeline.discover.second_process import SecondProcess
+def test_every_output_is_written_and_a_rerun_gives_the_same_bytes(backlash_discovery, tmp_path):
     from pipeline.discover.report import write_outputs
 
     d, doc = backlash_discovery
-    here = write_outputs(tmp_path / "here", d, doc, rrd=False, drawer=SecondProcess(background=False))
-    with SecondProcess(background=True) as drawer:
-        write_outputs(tmp_path / "process", d, doc, rrd=False, drawer=drawer)
-        assert drawer._proc is None                     # it drew, then was stopped
-    assert len(_figures(tmp_path / "here")) == 4
-    assert _figures(tmp_path / "process") == _figures(tmp_path / "here")
-    assert set(here) == {"json", "toml", "markdown", "signals_png", "residuals_png", "localisation_png",
-                         "candidates_png"}
-    with SecondProcess(background=True) as drawer:
-        drawer._proc.kill()
-        drawer._proc.join()
-        write_outputs(tmp_path / "died", d, doc, rrd=False, drawer=drawer)
-    assert _figures(tmp_path / "died") == _figures(tmp_path / "here")
-
-
-def test_a_fork_is_used_whenever_there_are_two_cores_a_spawned_process_only_with_an_idle_core(monkeypatch):
-    from pipeline.discover import second_process as sp
-
-    monkeypatch.setattr(sp.os, "cpu_count", lambda: 2)
-    monkeypatch.setattr(sp.os, "getloadavg", lambda: (1.5, 1.0, 1.0))
-    monkeypatch.setattr(sp, "can_fork", lambda: False)
-    assert not sp.use_second_process()
-    monkeypatch.setattr(sp.os, "getloadavg", lambda: (0.7, 1.0, 1.0))
-    assert sp.use_second_process()
-    monkeypatch.setattr(sp, "can_fork", lambda: True)
-    monkeypatch.setattr(sp.os, "getloadavg", lambda: (3.0, 1.0, 1.0))
-    assert sp.use_second_process()                      # a fork repeats no import: no CPU spent for nothing
-    monkeypatch.setattr(sp.os, "cpu_count", lambda: 1)
-    assert not sp.use_second_process()
-    monkeypatch.setenv("PDR_DISCOVER_DRAW", "process")
-    assert sp.use_second_process()
-    monkeypatch.setenv("PDR_DISCOVER_DRAW", "here")
-    assert not sp.use_second_process()
-
-
-@pytest.mark.skipif(not can_fork(), reason="processes cannot be forked here")
-def test_a_half_the_forks_fork_failed_to_draw_is_drawn_again_here(backlash_discovery, tmp_path, monkeypatch):
-    """The second process (a fork) hands half the figures to a fork of its own; when that one fails,
-    the first process draws everything again (the same bytes)."""
-    from pipeline.discover import report
-    from pipeline.discover.second_process import FORKED_HALF, SecondProcess
-
-    d, doc = backlash_discovery
-    report.write_outputs(tmp_path / "here", d, doc, rrd=False, drawer=SecondProcess(background=False))
-    first, draw = os.getpid(), report.FIGURES[FORKED_HALF[0]]
-    failed = tmp_path / "failed-in"
-
-    def only_here(d_):
-        if os.getpid() != first:
-            failed.mkdir(exist_ok=True)
-            (failed / str(os.getpid())).touch()
-            raise RuntimeError("not here")
-        return draw(d_)
-
-    monkeypatch.setitem(report.FIGURES, FORKED_HALF[0], only_here)
-    with SecondProcess(background=True) as drawer:
-        second = drawer._proc.pid
-        report.write_outputs(tmp_path / "again", d, doc, rrd=False, drawer=drawer)
-    drew = [int(p.name) for p in failed.iterdir()]
-    assert len(drew) == 1 and drew[0] not in (first, second)     # the second process's fork drew it (and failed)
-    assert _figures(tmp_path / "again") == _figures(tmp_path / "here")
+    first = write_outputs(tmp_path / "first", d, doc, rrd=False)
+    write_outputs(tmp_path / "again", d, doc, rrd=False)
+    assert set(first) == {"json", "toml", "markdown", "signals_png", "residuals_png", "localisation_png",
+                          "candidates_png"}
+    assert all(p.is_file() and p.stat().st_size > 0 for p in first.values())
+    assert len(_figures(tmp_path / "first")) == 4
+    assert _figures(tmp_path / "again") == _figures(tmp_path / "first")
 
 
 def test_no_figure_parses_mathtext(backlash_discovery, monkeypatch):
