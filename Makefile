@@ -7,7 +7,7 @@ PY     := $(VENV)/bin/python
 PDR    := $(VENV)/bin/pdr
 STAMP  := $(VENV)/.installed-stamp
 
-.PHONY: all run test test-fast bench bench-discovery bench-discovery-shipped gate setup clean viewer-deps bytecode mutation
+.PHONY: all run test test-fast bench bench-discovery bench-discovery-shipped bench-calibration gate setup clean viewer-deps bytecode mutation
 
 all: run
 
@@ -54,6 +54,10 @@ bench: bytecode
 
 bench-discovery: bytecode
 	$(PY) -m benchmarks.discovery_matrix
+
+# pdr calibrate on six rigs off Table I (fresh seed, printed): calibration, then discovery on new recordings
+bench-calibration: bytecode
+	$(PY) -m benchmarks.bench_calibration
 
 bench-discovery-shipped: bytecode
 	$(PY) -m benchmarks.discovery_matrix --shipped

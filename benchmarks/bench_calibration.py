@@ -13,13 +13,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import secrets
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
+from benchmarks.protocol import rate_text, seed_for_run
 from pipeline.model.params import ModelParams
 from pipeline.rig.other_rigs import ROLES, rigs, truth_of, write_rig
 
@@ -51,8 +51,7 @@ def main() -> None:
     ap.add_argument("--rigs", type=int, default=6)
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results/calibration.json"))
     a = ap.parse_args()
-    seed = a.seed if a.seed is not None else secrets.randbelow(10**6)
-    print(f"seed {seed}", flush=True)
+    seed = seed_for_run(a.seed, "python -m benchmarks.bench_calibration")
     rows = []
     with tempfile.TemporaryDirectory(prefix="pdr-bench-cal-") as tmp:
         work = Path(tmp)
@@ -108,10 +107,10 @@ def main() -> None:
     n = len(rows)
     held = [v for r in rows for v in r["intervals_hold"].values()]
     summary = {"seed": seed, "rigs": n,
-               "clean_none": sum(r["clean"]["right"] for r in rows),
-               "hidden_named_within_20pct": sum(r["hidden"]["right"] for r in rows),
-               "intervals_hold": f"{sum(held)}/{len(held)}",
-               "no_wrong_name_uncalibrated": sum(r["no_wrong_name_uncalibrated"] for r in rows),
+               "clean_none": rate_text(sum(r["clean"]["right"] for r in rows), n),
+               "hidden_named_within_20pct": rate_text(sum(r["hidden"]["right"] for r in rows), n),
+               "intervals_hold": rate_text(sum(held), len(held)),
+               "no_wrong_name_uncalibrated": rate_text(sum(r["no_wrong_name_uncalibrated"] for r in rows), n),
                "calibrate_seconds_max": max(r["calibrate_seconds"] for r in rows)}
     print(json.dumps(summary, indent=1))
     a.out.parent.mkdir(parents=True, exist_ok=True)
