@@ -14,8 +14,7 @@ import numpy as np
 
 from pipeline.discover.stage import Discovery
 from pipeline.io.atomic import atomic_path
-
-COLORS = {"measured": (230, 230, 230), "base model": (255, 140, 0), "augmented model": (0, 170, 255)}
+from pipeline.validate.palette import DISCOVERY_RGB as COLORS
 # signal -> (kinematics column, SimResult field)
 _SIGNALS = {"theta": ("theta_rad", "theta"), "omega": ("omega_rad_s", "omega"),
             "current": ("current_a", "current_measured")}

@@ -84,8 +84,8 @@ def _portrait(name: str, origin: str):
 
     from pipeline.validate.rerun_phase import CAMERA
 
-    return rrb.Spatial3DView(origin=origin, name=name, background=rrb.Background(color=(20, 20, 24)),
-                             eye_controls=rrb.EyeControls3D(kind="Orbital", **CAMERA),
+    # no background of its own: the scheme's, which the palette's mid tones and the labels' boxes suit
+    return rrb.Spatial3DView(origin=origin, name=name, eye_controls=rrb.EyeControls3D(kind="Orbital", **CAMERA),
                              line_grid=rrb.LineGrid3D(visible=False))
 
 

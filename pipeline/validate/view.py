@@ -33,6 +33,11 @@ NO_DISPLAY = ("no display to open the viewer on (neither DISPLAY nor WAYLAND_DIS
               "on a cluster node): run `pdr view --web RUN...` and open the address it prints in a browser")
 
 
+# The viewer keeps one active layout per application id: the side-by-side files have their own, so
+# opening a run after them shows the run's layout, not the other's views over entities it lacks.
+SIDE_BY_SIDE_APP = "pdr-side-by-side"
+
+
 def display_available(environ=os.environ, platform: str = sys.platform) -> bool:
     """A native window can open: on Linux and the BSDs only with an X11 or Wayland display."""
     if not platform.startswith(("linux", "freebsd", "openbsd", "netbsd")):
@@ -62,8 +67,8 @@ def side_by_side_rrd(rrds: dict[str, Path], target: Path) -> Path:
     # the band for the longest legend (closed loop and replay apart: 7 lines)
     layout = blueprint_chunks(side_by_side_blueprint, tuple(rrds), legend_band(-peak, peak, 7))
     with atomic_path(Path(target)) as tmp:
-        rec = rr.RecordingStream("pdr", recording_id="side-by-side:" + "+".join(rrds))
-        save_with_blueprint(rec, tmp, layout)
+        rec = rr.RecordingStream(SIDE_BY_SIDE_APP, recording_id="side-by-side:" + "+".join(rrds))
+        save_with_blueprint(rec, tmp, layout, application_id=SIDE_BY_SIDE_APP)
         rr.send_chunks(moved, recording=rec)
         rec.flush()
         rec.disconnect()
