@@ -45,8 +45,9 @@ def log_discovery(rec, d: Discovery, report_md: str, guard: float, way: str = "r
         log_signal(rec, f"signals/{sig}", every, lines)
         if y is not None:
             log_signal(rec, f"residuals/{sig}", every, {
-                "before": (y - getattr(d.base[way], field), COLORS["base model"], 1.5),
-                "after": (y - getattr(d.final[way], field), COLORS["augmented model"], 1.5)})
+                # the base model's residual wide under the augmented one's: both show where they agree
+                "before": (y - getattr(d.base[way], field), COLORS["base model"], 3.0),
+                "after": (y - getattr(d.final[way], field), COLORS["augmented model"], 1.2)})
     log_guards(rec, "signals/theta/guards", t, guard)
     log_mode_lane(rec, f"mode/{d.meas.dir_source}", t, d.meas.dir)
     kin = d.meas.kinematics

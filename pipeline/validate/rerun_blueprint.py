@@ -45,14 +45,15 @@ def legend_band(lo: float, hi: float, entries: int) -> tuple[float, float]:
 
 def tick_range(peak: float) -> tuple[float, float] | None:
     """A symmetric y range for a residual of largest size ``peak`` = m x 10^k (1 <= m < 10) whose
-    gridlines get labels.  The viewer labels multiples of a power of ten, and only when they are
-    ~20 px apart: a ~150 px plot spanning more than ~7 steps, or whose data stop just short of a
-    step, shows only "0".  So: +/- 1.1 x peak when m <= 3 (at most 6.6 steps of 10^k, +/-10^k
-    inside), else +/- 1.15 x 10^(k+1) (two steps, the data filling 26-87 % of the height)."""
+    gridlines get labels.  The viewer labels multiples of a power of ten when they are ~19 px
+    apart or more (seen on a ~150 px residual plot: steps of 1 on +/-3.85 are labelled, steps of
+    0.01 on +/-0.1 are not, leaving only "0").  So: +/- 1.1 x peak while that spans at most 9
+    steps of 10^k (m <= 4.09: the data fill 91 % of the height), else +/- 1.05 x 10^(k+1), one
+    step each side (the data fill 39-90 %)."""
     if not np.isfinite(peak) or peak <= 0.0:
         return None
     step = 10.0 ** np.floor(np.log10(peak))
-    half = 1.1 * peak if peak <= 3.0 * step else 1.15 * 10.0 * step
+    half = 1.1 * peak if 1.1 * peak <= 4.5 * step else 1.05 * 10.0 * step
     return (round(float(-half), 12), round(float(half), 12))
 
 
