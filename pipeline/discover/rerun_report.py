@@ -69,8 +69,7 @@ def write_rrd(target: Path, d: Discovery, report_md: str, way: str = "replay") -
 
     guard = d.meas.config.plant_spec().guard_rad
     sims = {"base": d.base[way], "final": d.final[way]}
-    # legend: the models, measured and the guards
-    ranges = axis_ranges(discovery_blueprint, theta_band(d.meas.kinematics, sims, guard, 3 + bool(d.effects)),
+    ranges = axis_ranges(discovery_blueprint, theta_band(d.meas.kinematics, sims, guard),
                          residual_ranges(d.meas.kinematics, sims.values()))
     with atomic_path(Path(target)) as tmp:
         rec = rr.RecordingStream("pdr-discover", recording_id=f"discover-{d.meas.name}")

@@ -2,8 +2,8 @@
 
 A run (``run_blueprint``): each signal in a row with its residual beside it, at
 the same height, every time axis linked; the mode lane under them; the 3-D
-phase portrait over the statistics and events on the right.  One legend, on
-the angle plot, in a band above the data kept free by the plot's range.  The
+phase portrait over the statistics and events on the right, the angle plot's
+legend in a short view of its own above them (``_legend``).  The
 side panels are collapsed and the time panel is paused: the recording is
 complete when it is opened, so there is nothing to play, and the time cursor
 stays where the viewer puts a finished recording's (see the viewer test).
@@ -28,10 +28,12 @@ from pipeline.validate.rerun_io import stable_ids
 
 SIGNAL_UNITS = (("theta", "rad"), ("omega", "rad/s"), ("current", "A"))
 RUN_VIEW_NAMES = ("theta [rad]", "omega [rad/s]", "current [A]", "residual theta [rad]", "residual omega [rad/s]",
-                  "residual current [A]", "mode", "trajectory (I, w, theta)", "statistics", "events")
+                  "residual current [A]", "mode", "legend", "trajectory (I, w, theta)", "statistics", "events")
 DISCOVERY_VIEW_NAMES = ("theta [rad]", "omega [rad/s]", "current [A]", "residual theta [rad]",
-                        "residual omega [rad/s]", "residual current [A]", "mode", "before: base model (I, w, theta)",
-                        "after: augmented model (I, w, theta)", "report")
+                        "residual omega [rad/s]", "residual current [A]", "mode", "legend",
+                        "before: base model (I, w, theta)", "after: augmented model (I, w, theta)", "report")
+# The legend view's y range: far above any angle, so the view draws its legend and no data.
+LEGEND_ONLY_RANGE = (1000.0, 1001.0)
 
 
 def legend_band(lo: float, hi: float, entries: int) -> tuple[float, float]:
@@ -66,18 +68,30 @@ def _time_series(name: str, origin: str, legend: bool = False, y_range: tuple[fl
         plot_legend=rrb.PlotLegend(corner="LeftTop", visible=legend))
 
 
+def _legend(origin: str = "/signals/theta", name: str = "legend"):
+    """The angle plot's legend in a view of its own: the angle plot's series over a y range none of
+    them reaches.  A legend drawn on the angle plot covered the data unless the plot's range kept a
+    band free for it, a third of the plot's height; here it takes a quarter of the right column."""
+    import rerun.blueprint as rrb
+
+    return rrb.TimeSeriesView(
+        origin=origin, name=name, axis_x=rrb.TimeAxis(link="LinkToGlobal"),
+        axis_y=rrb.ScalarAxis(range=LEGEND_ONLY_RANGE, zoom_lock=True),
+        plot_legend=rrb.PlotLegend(corner="LeftTop", visible=True), background=rrb.archetypes.PlotBackground(show_grid=False))
+
+
 def _signal_rows(theta_range: tuple[float, float] | None, residual_ranges: tuple | None):
     """Three rows, each a signal with its residual beside it (same height), and the mode lane."""
     import rerun.blueprint as rrb
 
     residual_ranges = residual_ranges or (None,) * len(SIGNAL_UNITS)
-    rows = [rrb.Horizontal(_time_series(f"{sig} [{unit}]", f"/signals/{sig}", legend=sig == "theta",
+    rows = [rrb.Horizontal(_time_series(f"{sig} [{unit}]", f"/signals/{sig}",
                                         y_range=theta_range if sig == "theta" else None),
                            _time_series(f"residual {sig} [{unit}]", f"/residuals/{sig}", y_range=res_range),
                            column_shares=[3, 2])
             for (sig, unit), res_range in zip(SIGNAL_UNITS, residual_ranges)]
     lane = rrb.StateTimelineView(origin="/mode", name="mode", time_view=rrb.TimeAxis(link="LinkToGlobal"))
-    return rrb.Vertical(*rows, lane, row_shares=[5, 3, 3, 1.8])
+    return rrb.Vertical(*rows, lane, row_shares=[4, 3, 3, 1.8])
 
 
 def _portrait(name: str, origin: str):
@@ -107,13 +121,12 @@ def _events_view():
 
 
 def run_blueprint(theta_range: tuple[float, float] | None = None, residual_ranges: tuple | None = None):
-    """The layout of ``<run>.rrd``; ``theta_range`` leaves the legend its band (``legend_band``),
-    ``residual_ranges`` (theta, omega, current; ``tick_range`` or None) label the residuals' axes."""
+    """The layout of ``<run>.rrd``; ``theta_range`` (the data and the guards), ``residual_ranges`` (theta, omega, current; ``tick_range`` or None) label the residuals' axes."""
     import rerun.blueprint as rrb
 
-    right = rrb.Vertical(_portrait("trajectory (I, w, theta)", "/trajectory"),
+    right = rrb.Vertical(_legend(), _portrait("trajectory (I, w, theta)", "/trajectory"),
                          rrb.Tabs(rrb.TextDocumentView(origin="/stats", name="statistics"), _events_view()),
-                         row_shares=[3, 2])
+                         row_shares=[2.1, 3, 2])
     bp = rrb.Blueprint(rrb.Horizontal(_signal_rows(theta_range, residual_ranges), right, column_shares=[3, 2]),
                        *_panels(), auto_views=False)
     return stable_ids(bp, "run")
@@ -124,9 +137,10 @@ def discovery_blueprint(theta_range: tuple[float, float] | None = None, residual
     import rerun.blueprint as rrb
 
     right = rrb.Vertical(
+        _legend(),
         rrb.Horizontal(_portrait("before: base model (I, w, theta)", "/trajectory_before"),
                        _portrait("after: augmented model (I, w, theta)", "/trajectory_after")),
-        rrb.TextDocumentView(origin="/report", name="report"), row_shares=[2, 3])
+        rrb.TextDocumentView(origin="/report", name="report"), row_shares=[1.1, 2, 3])
     bp = rrb.Blueprint(rrb.Horizontal(_signal_rows(theta_range, residual_ranges), right, column_shares=[5, 4]),
                        *_panels(), auto_views=False)
     return stable_ids(bp, "discovery")

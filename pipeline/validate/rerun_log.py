@@ -33,7 +33,7 @@ from pipeline.columns import column
 from pipeline.model.simulate import SimResult
 from pipeline.validate.compare import logged_dir, switch_indices
 from pipeline.validate.palette import RGB
-from pipeline.validate.rerun_blueprint import RUN_VIEW_NAMES, axis_ranges, legend_band, run_blueprint, tick_range
+from pipeline.validate.rerun_blueprint import RUN_VIEW_NAMES, axis_ranges, run_blueprint, tick_range
 from pipeline.validate.rerun_io import (blueprint_chunks, rerun_executable, save_with_blueprint,  # noqa: F401
                                         verify_rrd, verify_rrds)
 from pipeline.validate.rerun_phase import log_phase_portrait
@@ -221,15 +221,14 @@ def _events(rec, rows: list[tuple[float, str, str]]) -> None:
                          columns=rr.TextLog.columns(text=[r[1] for r in rows], level=[r[2] for r in rows]))
 
 
-def theta_band(kin: pd.DataFrame, sims: dict[str, SimResult], guard: float, entries: int) -> tuple[float, float]:
-    """The angle plot's y range: the data and the guards, rounded out to 0.1 rad, with the legend's
-    band on top."""
+def theta_band(kin: pd.DataFrame, sims: dict[str, SimResult], guard: float) -> tuple[float, float]:
+    """The angle plot's y range: the data and the guards, rounded out to 0.1 rad, 3 % to spare (the
+    legend has a view of its own, ``rerun_blueprint._legend``)."""
     values = [np.abs(s.theta) for s in sims.values()] + [np.abs(column(kin, c, dtype=float))
                                                           for c in ("theta_rad",) if c in kin.columns]
     peak = max([guard, *(float(np.nanmax(v)) for v in values)])
     peak = float(np.ceil(peak * 10.0) / 10.0)
-    lo, hi = legend_band(-peak, peak, entries)
-    return round(lo, 3), round(hi, 3)
+    return round(-1.03 * peak, 3), round(1.03 * peak, 3)
 
 
 def residual_ranges(kin: pd.DataFrame, sims) -> tuple:
@@ -285,13 +284,6 @@ def log_run(rec, name: str, kin: pd.DataFrame, sims: dict[str, SimResult], valid
     coincide = coincidence(*sims.values()) if len(sims) == 2 else None
     rec.log("stats", rr.TextDocument(stats_markdown(name, validation, derived, coincide),
                                      media_type=rr.MediaType.MARKDOWN), static=True)
-
-
-def legend_entries(sims: dict[str, SimResult]) -> int:
-    """Lines of the angle plot's legend: the models, measured, guards, logged switches, guard
-    crossings, and the closed loop's switches when it departs from the replay."""
-    models = len(model_series(sims))
-    return models + 4 + (models > 1)
 
 
 def portrait_strips(kin: pd.DataFrame, models: dict[str, tuple[SimResult, tuple]]) -> dict:
@@ -380,7 +372,7 @@ def write_rrd(target: Path, name: str, kin: pd.DataFrame, sims: dict[str, SimRes
 
     from pipeline.io.atomic import atomic_path
 
-    ranges = axis_ranges(run_blueprint, theta_band(kin, sims, guard, legend_entries(sims)),
+    ranges = axis_ranges(run_blueprint, theta_band(kin, sims, guard),
                          residual_ranges(kin, sims.values()))
     with atomic_path(Path(target)) as tmp:
         rec = rr.RecordingStream("pdr", recording_id=name)

@@ -201,7 +201,10 @@ def test_blueprint_is_saved_with_every_view_and_opens_at_the_end(rrd):
     residual = np.abs(kin["current_a"].to_numpy() - sims["replay"].current_measured).max()
     assert by_name["residual current [A]"] == list(tick_range(residual))
     lo, hi = by_name["theta [rad]"]
-    assert lo < -np.abs(kin["theta_rad"]).max() and hi > 2 * np.abs(kin["theta_rad"]).max()   # the legend's band
+    peak = max(np.abs(kin["theta_rad"]).max(), *(np.abs(s.theta).max() for s in sims.values()))
+    assert lo == -hi and peak < hi <= 1.03 * (peak + 0.1)          # the data, no band kept for a legend
+    legend_low, _ = by_name["legend"]
+    assert legend_low > 10 * peak                                   # the legend's view shows no data
     assert by_name["omega [rad/s]"] is None
 
 
