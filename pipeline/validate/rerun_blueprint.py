@@ -36,15 +36,6 @@ DISCOVERY_VIEW_NAMES = ("theta [rad]", "omega [rad/s]", "current [A]", "residual
 LEGEND_ONLY_RANGE = (1000.0, 1001.0)
 
 
-def legend_band(lo: float, hi: float, entries: int) -> tuple[float, float]:
-    """A y range for a plot whose data span [lo, hi] that leaves room above them for a legend of
-    ``entries`` lines (~8 % of the plot's height each: ~20 px of a ~270 px plot, the angle plot in
-    a 1600 x 1000 window)."""
-    share = min(0.08 * entries + 0.05, 0.65)
-    span = hi - lo
-    return lo - 0.03 * span, hi + span * share / (1.0 - share)
-
-
 def tick_range(peak: float) -> tuple[float, float] | None:
     """A symmetric y range for a residual of largest size ``peak`` = m x 10^k (1 <= m < 10) whose
     gridlines get labels.  The viewer labels multiples of a power of ten when they are ~19 px
@@ -147,20 +138,25 @@ def discovery_blueprint(theta_range: tuple[float, float] | None = None, residual
 
 
 def side_by_side_blueprint(names: tuple[str, ...], theta_range: tuple[float, float] | None = None):
-    """Several runs in columns (``pdr view A B``): each run's signals, mode lane and phase portrait
-    under ``/runs/<name>``, every time axis linked; the legend on the first run's angle plot."""
+    """Several runs in columns (``pdr view A B``), each run's data under ``/runs/<name>``, every time
+    axis linked.  A column: the angle with the run's own legend beside it (each run names its own
+    model lines: "closed loop = replay" only where they coincide), omega, current, the mode lane,
+    and tabs with the phase portrait, the three residuals and the statistics, the full column wide."""
     import rerun.blueprint as rrb
 
     columns = []
-    for i, name in enumerate(names):
+    for name in names:
         root = f"/runs/{name}"
-        plots = [_time_series(f"{name}: {sig} [{unit}]", f"{root}/signals/{sig}", legend=i == 0 and sig == "theta",
-                              y_range=theta_range if sig == "theta" else None)
-                 for sig, unit in SIGNAL_UNITS]
+        angle = rrb.Horizontal(_time_series(f"{name}: theta [rad]", f"{root}/signals/theta", y_range=theta_range),
+                               _legend(f"{root}/signals/theta", f"{name}: legend"), column_shares=[2.6, 1])
+        plots = [_time_series(f"{name}: {sig} [{unit}]", f"{root}/signals/{sig}") for sig, unit in SIGNAL_UNITS[1:]]
+        residuals = [_time_series(f"{name}: residual {sig} [{unit}]", f"{root}/residuals/{sig}")
+                     for sig, unit in SIGNAL_UNITS]
         lane = rrb.StateTimelineView(origin=f"{root}/mode", name=f"{name}: mode",
                                      time_view=rrb.TimeAxis(link="LinkToGlobal"))
-        columns.append(rrb.Vertical(*plots, lane, _portrait(f"{name}: trajectory (I, w, theta)", f"{root}/trajectory"),
-                                    row_shares=[4, 2.5, 2.5, 1.6, 3]))
+        tabs = rrb.Tabs(_portrait(f"{name}: trajectory (I, w, theta)", f"{root}/trajectory"), *residuals,
+                        rrb.TextDocumentView(origin=f"{root}/stats", name=f"{name}: statistics"))
+        columns.append(rrb.Vertical(angle, *plots, lane, tabs, row_shares=[3.5, 1.9, 1.9, 1.8, 3.3]))
     bp = rrb.Blueprint(rrb.Horizontal(*columns), *_panels(), auto_views=False)
     return stable_ids(bp, "side-by-side/" + "/".join(names))
 
