@@ -31,7 +31,7 @@ GUARD_PLANE_RGBA = (230, 60, 60, 56)
 GUARD_LABEL_RGB = (200, 60, 95)
 # Eye of the saved view, in the unit frame: above the (I > 0, omega < 0) corner, looking at the
 # centre, near enough that the unit cube and its labels fill the view.
-CAMERA = {"position": (2.25, -2.7, 1.65), "look_target": (0.0, 0.0, -0.15), "eye_up": (0.0, 0.0, 1.0)}
+CAMERA = {"position": (2.5, -3.0, 1.85), "look_target": (0.0, 0.0, 0.05), "eye_up": (0.0, 0.0, 1.0)}
 # The axis arrows lie on edges of the cube's outline as seen from ``CAMERA`` (the edges through the
 # nearest and the farthest corner are seen inside the cube, over the curves): I and theta from the
 # (-1, -1, -1) corner, omega along the right-hand bottom edge.  Labels past the tips of omega and
@@ -84,7 +84,7 @@ def log_phase_portrait(rec, origin: str, strips: dict[str, tuple[np.ndarray, tup
         labels=[f"{n} [{u}], \u00b1{e:.3g}" for (n, u), e in zip(AXES, ext)], show_labels=True), static=True)
     names = list(strips)
     rec.log(f"{origin}/legend", rr.Points3D(
-        [[0.0, 0.0, 1.15 + 0.22 * (len(names) - 1 - i)] for i in range(len(names))],
+        [[0.0, 0.0, 1.4 + 0.22 * (len(names) - 1 - i)] for i in range(len(names))],
         radii=rr.Radius.ui_points(4.0), colors=_packed([strips[n][1] for n in names]), labels=names,
         show_labels=True), static=True)
     return ext
