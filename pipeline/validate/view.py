@@ -33,8 +33,8 @@ NO_DISPLAY = ("no display to open the viewer on (neither DISPLAY nor WAYLAND_DIS
               "on a cluster node): run `pdr view --web RUN...` and open the address it prints in a browser")
 
 
-# The viewer keeps one active layout per application id: the side-by-side files have their own, so
-# opening a run after them shows the run's layout, not the other's views over entities it lacks.
+# The viewer keeps a layout per application id: the side-by-side files, whose views look at
+# /runs/<name>/..., have their own, so a run's recording (application id "pdr") is never shown in it.
 SIDE_BY_SIDE_APP = "pdr-side-by-side"
 
 

@@ -82,7 +82,22 @@ def recordings(tmp_path_factory):
     result = CliRunner().invoke(app, ["discover", str(csv), "--out", str(work / "discovery")])
     assert result.exit_code == 0, result.output
     return {"run": paths.rrd, "discovery": work / "discovery" / "discovery.rrd",
-            "unscaled": _scale_on_the_origin(paths.rrd, work / "unscaled.rrd")}
+            "unscaled": _scale_on_the_origin(paths.rrd, work / "unscaled.rrd"),
+            "another_run": _another_run(paths.rrd, work / "another.rrd")}
+
+
+def _another_run(src, target):
+    """The run's file as another run would be written: application id "pdr", a recording id of its
+    own, the run's layout (a run the viewer has not opened yet)."""
+    reader = RrdReader(src)
+    layout = reader.store(store=reader.blueprints()[0]).stream().collect()
+    chunks = [ch for ch in reader.stream().to_chunks() if ch.entity_path != "/__properties"]
+    rec = rr.RecordingStream("pdr", recording_id="another")
+    save_with_blueprint(rec, target, layout)
+    rr.send_chunks(chunks, recording=rec)
+    rec.flush()
+    rec.disconnect()
+    return target
 
 
 def _scale_on_the_origin(src, target):
@@ -239,8 +254,8 @@ def _side_by_side_over_http(viewer, run, folder, shots) -> None:
 
 
 def _run_after_side_by_side(viewer, run) -> None:
-    """The run opened again after a side-by-side file: its own layout, every view healthy (with a
-    shared application id the viewer kept the side-by-side layout, its views empty)."""
+    """A run the viewer has not shown yet, opened after a side-by-side file: its own layout, every
+    view healthy (the side-by-side files have an application id of their own, ``SIDE_BY_SIDE_APP``)."""
     state, recording = _open(viewer, run)
     _check_layout(state, recording, VIEW_NAMES)
 
@@ -251,7 +266,7 @@ def test_recordings_open_on_their_layouts_with_the_portraits_scaled(viewer, reco
     _discovery_recording(viewer, recordings["discovery"], shots)
     _unscaled_recording(viewer, recordings["unscaled"])
     _side_by_side_over_http(viewer, recordings["run"], tmp_path, shots)
-    _run_after_side_by_side(viewer, recordings["run"])
+    _run_after_side_by_side(viewer, recordings["another_run"])
 
 
 # The signal plots of a run's layout in a 1600 x 1000 window, as shares of its width and height:
