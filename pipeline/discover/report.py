@@ -236,8 +236,8 @@ def candidates_figure(d: Discovery):
         seen += [f for f in fate if f not in seen]
         y = np.arange(len(rnd))[::-1]                                   # the first candidate on top
         # a score of 0 still gets a stub of its fate's colour; the printed score is the value
-        ax.barh(y, [max(sc, 0.006 * score_limit(scores)) for sc in scores], color=[OUTCOME_COLORS[f] for f in fate], edgecolor="0.35", linewidth=0.6,
-                hatch=[OUTCOME_HATCHES.get(f, "") for f in fate])
+        ax.barh(y, [max(sc, 0.006 * score_limit(scores)) for sc in scores], color=[OUTCOME_COLORS[f] for f in fate],
+                edgecolor="0.35", linewidth=0.6, hatch=[OUTCOME_HATCHES.get(f, "") for f in fate])
         ax.set_yticks(y, [f"{n} - {candidate_reason(a, f)}" for n, a, f in zip(names, rnd, fate)])
         hi = score_limit(scores)
         ax.set_xlim(0, hi)

@@ -68,7 +68,8 @@ def _legend(origin: str = "/signals/theta", name: str = "legend"):
     return rrb.TimeSeriesView(
         origin=origin, name=name, axis_x=rrb.TimeAxis(link="LinkToGlobal"),
         axis_y=rrb.ScalarAxis(range=LEGEND_ONLY_RANGE, zoom_lock=True),
-        plot_legend=rrb.PlotLegend(corner="LeftTop", visible=True), background=rrb.archetypes.PlotBackground(show_grid=False))
+        plot_legend=rrb.PlotLegend(corner="LeftTop", visible=True),
+        background=rrb.archetypes.PlotBackground(show_grid=False))
 
 
 def _signal_rows(theta_range: tuple[float, float] | None, residual_ranges: tuple | None):
@@ -112,7 +113,8 @@ def _events_view():
 
 
 def run_blueprint(theta_range: tuple[float, float] | None = None, residual_ranges: tuple | None = None):
-    """The layout of ``<run>.rrd``; ``theta_range`` (the data and the guards), ``residual_ranges`` (theta, omega, current; ``tick_range`` or None) label the residuals' axes."""
+    """The layout of ``<run>.rrd``; ``theta_range`` (the data and the guards), ``residual_ranges``
+    (theta, omega, current; ``tick_range`` or None) label the residuals' axes."""
     import rerun.blueprint as rrb
 
     right = rrb.Vertical(_legend(), _portrait("trajectory (I, w, theta)", "/trajectory"),
