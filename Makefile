@@ -29,12 +29,17 @@ setup: $(STAMP)
 bytecode: $(STAMP)
 	@$(PY) -m compileall -q pipeline
 
-# The headless Rerun viewer test needs a Vulkan driver: Mesa's software one (lavapipe).
+# The headless Rerun viewer test needs a Vulkan driver: Mesa's software one (lavapipe); its light and
+# dark scheme check opens `pdr view --web` in Debian's headless Chromium.
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 viewer-deps:
 	@if ! ls /usr/share/vulkan/icd.d/lvp_icd.*.json >/dev/null 2>&1; then \
 	  echo "installing mesa-vulkan-drivers (software Vulkan for the headless viewer test)"; \
 	  $(SUDO) apt-get update -qq && DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq mesa-vulkan-drivers; \
+	fi
+	@if ! command -v chromium >/dev/null 2>&1; then \
+	  echo "installing chromium (the viewer test's light and dark scheme screenshots)"; \
+	  $(SUDO) apt-get update -qq && DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq chromium; \
 	fi
 
 run: bytecode

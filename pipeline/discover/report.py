@@ -79,9 +79,11 @@ def residuals_png(d: Discovery, way: str = "replay") -> bytes:
         if y is None:
             ax.set_ylabel(f"{sig}: not logged")
             return
-        for label, sims, mse, color in (("before", d.base, d.mse_before, _COLORS["base"]),
-                                        ("after", d.final, d.mse_after, _COLORS["augmented"])):
-            ax.plot(t, y - getattr(sims[way], field), color=color, lw=1.0,
+        # the base model's residual a wide pale band, the augmented one's a thin line on it: where the
+        # effects changed nothing the two coincide and both still show
+        for label, sims, mse, color, lw, alpha in (("before", d.base, d.mse_before, _COLORS["base"], 2.6, 0.55),
+                                                   ("after", d.final, d.mse_after, _COLORS["augmented"], 0.9, 1.0)):
+            ax.plot(t, y - getattr(sims[way], field), color=color, lw=lw, alpha=alpha,
                     label=f"{label} (MSE {mse[way].get(sig, float('nan')):.3g})")
         ax.axhline(0.0, color="0.5", lw=0.6)
         ax.set_ylabel(f"residual {sig} [{unit}]")
@@ -152,7 +154,10 @@ def _margins(fig, top: float, bottom: float, left: float, hspace: float, wspace:
 
 
 OUTCOME_COLORS = {"adopted": "tab:green", "adopted, later pruned": "yellowgreen",
-                  "passed, not chosen": "tab:blue", "rejected": "0.7", "screened out": "0.85"}
+                  "passed, not chosen": "tab:blue", "rejected": "0.55", "screened out": "white"}
+# Screened out (never fitted) hatched on white, rejected (fitted, failed a check) solid grey: two
+# greys alone looked alike.
+OUTCOME_HATCHES = {"screened out": "////"}
 
 
 def outcomes(d: Discovery) -> list[str]:
@@ -188,31 +193,70 @@ def outcomes(d: Discovery) -> list[str]:
     return out
 
 
-def candidates_png(d: Discovery) -> bytes:
-    """Each candidate's share of held-out structure removed, per round, coloured by what became of it."""
+def candidate_reason(a, fate: str) -> str:
+    """What a bar's label says became of a candidate: for a rejected one, the checks it failed (the
+    first two by name, the count of the others: the report's table lists them all)."""
+    if fate == "rejected":
+        failed = [k for k, ok in a.checks.items() if not ok]
+        return "rejected: failed " + ", ".join(failed[:2]) + (f" +{len(failed) - 2}" if len(failed) > 2 else "")
+    return {"screened out": "screened out (coarse scan)"}.get(fate, fate)
+
+
+def score_limit(scores: list[float]) -> float:
+    """A round's x range: 0..1.05 when a candidate removed much of the structure, else fitted to the
+    round's best (a round whose scores are all ~0.001 drew zero-length bars on 0..1)."""
+    top = max(scores, default=0.0)
+    if top >= 0.5:
+        return 1.05
+    return max(0.01, nice_ceiling(1.15 * top)) if top > 0.0 else 0.01
+
+
+def nice_ceiling(x: float) -> float:
+    """The smallest 1, 2 or 5 times a power of ten that is >= x."""
+    p = 10.0 ** float(np.floor(np.log10(x)))
+    return next(m * p for m in (1.0, 2.0, 5.0, 10.0) if m * p >= x * (1 - 1e-12))
+
+
+def candidates_figure(d: Discovery):
+    """Each candidate's share of held-out structure removed, per round: one bar per candidate,
+    coloured (and, screened out, hatched) by what became of it, labelled with its name, the reason
+    and its score; each round's axis fitted to its scores."""
     from matplotlib.figure import Figure
     from matplotlib.patches import Patch
 
     rounds = d.selection.rounds
     fates = iter(outcomes(d))
-    fig = Figure(figsize=(10, 1.4 + 2.4 * max(len(rounds), 1)))
-    axes = fig.subplots(max(len(rounds), 1), 1, squeeze=False)[:, 0]
+    fig = Figure(figsize=(11, 1.4 + 0.3 * sum(len(r) for r in rounds) + 1.0 * max(len(rounds), 1)))
+    axes = fig.subplots(max(len(rounds), 1), 1, squeeze=False,
+                        height_ratios=[max(len(r), 1) for r in rounds] or None)[:, 0]
     seen: list[str] = []
     for ax, rnd in zip(axes, rounds):
         names = [a.fit.name if hasattr(a, "fit") else a.name for a in rnd]
         scores = [max(a.score, 0.0) for a in rnd]
         fate = [next(fates) for _ in rnd]
         seen += [f for f in fate if f not in seen]
-        ax.barh(names[::-1], scores[::-1], color=[OUTCOME_COLORS[f] for f in fate[::-1]])
-        ax.set_xlim(0, 1.05)
-        ax.set_title(f"round {rnd[0].round}: share of held-out structure removed", fontsize=9, y=1.0)
+        y = np.arange(len(rnd))[::-1]                                   # the first candidate on top
+        # a score of 0 still gets a stub of its fate's colour; the printed score is the value
+        ax.barh(y, [max(sc, 0.006 * score_limit(scores)) for sc in scores], color=[OUTCOME_COLORS[f] for f in fate],
+                edgecolor="0.35", linewidth=0.6, hatch=[OUTCOME_HATCHES.get(f, "") for f in fate])
+        ax.set_yticks(y, [f"{n} - {candidate_reason(a, f)}" for n, a, f in zip(names, rnd, fate)])
+        hi = score_limit(scores)
+        ax.set_xlim(0, hi)
+        for yi, sc in zip(y, scores):
+            ax.text(min(sc, hi) + 0.01 * hi, yi, f"{sc:.3f}", va="center", fontsize=7)
+        ax.set_title(f"round {rnd[0].round}: share of held-out structure removed"
+                     + ("" if hi > 1 else f" (axis to {hi:g})"), fontsize=9, y=1.0)
         ax.tick_params(labelsize=8)
     axes[-1].set_xlabel("share of held-out structure removed (1 = all of it)", fontsize=8)
     order = [f for f in OUTCOME_COLORS if f in seen]
-    fig.legend([Patch(color=OUTCOME_COLORS[f]) for f in order], order, loc="upper center", ncols=len(order),
-               fontsize=8, frameon=False)
-    _margins(fig, top=0.7, bottom=0.5, left=1.9, hspace=0.45)
-    return _png(fig)
+    fig.legend([Patch(facecolor=OUTCOME_COLORS[f], edgecolor="0.35", hatch=OUTCOME_HATCHES.get(f, ""))
+                for f in order], order, loc="upper center", ncols=len(order), fontsize=8, frameon=False)
+    _margins(fig, top=0.7, bottom=0.5, left=4.2, hspace=0.45)
+    return fig
+
+
+def candidates_png(d: Discovery) -> bytes:
+    return _png(candidates_figure(d))
 
 
 def _fmt(v: float) -> str:

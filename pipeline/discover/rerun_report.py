@@ -14,8 +14,7 @@ import numpy as np
 
 from pipeline.discover.stage import Discovery
 from pipeline.io.atomic import atomic_path
-
-COLORS = {"measured": (230, 230, 230), "base model": (255, 140, 0), "augmented model": (0, 170, 255)}
+from pipeline.validate.palette import DISCOVERY_RGB as COLORS
 # signal -> (kinematics column, SimResult field)
 _SIGNALS = {"theta": ("theta_rad", "theta"), "omega": ("omega_rad_s", "omega"),
             "current": ("current_a", "current_measured")}
@@ -46,8 +45,9 @@ def log_discovery(rec, d: Discovery, report_md: str, guard: float, way: str = "r
         log_signal(rec, f"signals/{sig}", every, lines)
         if y is not None:
             log_signal(rec, f"residuals/{sig}", every, {
-                "before": (y - getattr(d.base[way], field), COLORS["base model"], 1.5),
-                "after": (y - getattr(d.final[way], field), COLORS["augmented model"], 1.5)})
+                # the base model's residual wide under the augmented one's: both show where they agree
+                "before": (y - getattr(d.base[way], field), COLORS["base model"], 3.0),
+                "after": (y - getattr(d.final[way], field), COLORS["augmented model"], 1.2)})
     log_guards(rec, "signals/theta/guards", t, guard)
     log_mode_lane(rec, f"mode/{d.meas.dir_source}", t, d.meas.dir)
     kin = d.meas.kinematics
@@ -69,8 +69,7 @@ def write_rrd(target: Path, d: Discovery, report_md: str, way: str = "replay") -
 
     guard = d.meas.config.plant_spec().guard_rad
     sims = {"base": d.base[way], "final": d.final[way]}
-    # legend: the models, measured and the guards
-    ranges = axis_ranges(discovery_blueprint, theta_band(d.meas.kinematics, sims, guard, 3 + bool(d.effects)),
+    ranges = axis_ranges(discovery_blueprint, theta_band(d.meas.kinematics, sims, guard),
                          residual_ranges(d.meas.kinematics, sims.values()))
     with atomic_path(Path(target)) as tmp:
         rec = rr.RecordingStream("pdr-discover", recording_id=f"discover-{d.meas.name}")

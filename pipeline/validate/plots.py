@@ -39,9 +39,11 @@ from pipeline.model.simulate import SimResult
 
 _COLORS = {"measured": "0.2", "closed_loop": "tab:orange", "replay": "tab:blue"}
 _LABELS = {"measured": "measured", "closed_loop": "closed loop", "replay": "replay"}
-# Drawn in this order, widest first: where all three agree each still shows (a blue band, an orange
-# core, the measurement as a thin dark line on top).
-_WIDTHS = {"replay": 2.8, "closed_loop": 1.6, "measured": 1.0}
+# Drawn in this order, widest first: where all three agree each still shows (a pale blue band, an
+# orange core, the measurement as a dark line on top, as wide as the core so no model line hides it).
+_WIDTHS = {"replay": 2.6, "closed_loop": 1.5, "measured": 1.5}
+# The replay's wide band translucent: the measurement on top stays the one dark line over it.
+_ALPHAS = {"replay": 0.45, "closed_loop": 1.0, "measured": 1.0}
 # kinematics column, SimResult field, axis label
 _PANELS = (("theta_rad", "theta", "theta [rad]"), ("omega_rad_s", "omega", "omega [rad/s]"),
            ("current_a", "current_measured", "current [A]"))
@@ -110,7 +112,7 @@ class _Overview:
         self.canvas.get_renderer()          # its pixel buffer, which a background read from a file fills
         # Fixed margins: a layout engine would cost more than drawing the lines.
         gs = self.fig.add_gridspec(3, 2, width_ratios=[2.2, 1], left=0.07, right=0.985, bottom=0.07,
-                                   top=0.895, wspace=0.2, hspace=0.12)
+                                   top=0.925, wspace=0.2, hspace=0.12)
         first = self.fig.add_subplot(gs[0, 0])
         self.axes = [first] + [self.fig.add_subplot(gs[i, 0], sharex=first) for i in (1, 2)]
         self.phase = self.fig.add_subplot(gs[:2, 1])
@@ -118,7 +120,7 @@ class _Overview:
         for i, (_col, _field, label) in enumerate(_PANELS):
             ax = self.axes[i]
             for way, color in _COLORS.items():
-                (self.lines[i, way],) = ax.plot([], [], color=color, lw=_WIDTHS[way],
+                (self.lines[i, way],) = ax.plot([], [], color=color, lw=_WIDTHS[way], alpha=_ALPHAS[way],
                                                 animated=True)
             ax.set_ylabel(label, fontsize=11)
             ax.grid(alpha=0.3)
@@ -128,7 +130,7 @@ class _Overview:
             if i < 2:
                 ax.tick_params(labelbottom=False)
         self.axes[2].set_xlabel("t [s]", fontsize=11)
-        self.phase_lines = {way: self.phase.plot([], [], color=c, lw=_WIDTHS[way],
+        self.phase_lines = {way: self.phase.plot([], [], color=c, lw=_WIDTHS[way], alpha=_ALPHAS[way],
                                                  animated=True)[0] for way, c in _COLORS.items()}
         self.phase.set_xlabel("theta [rad]", fontsize=11)
         self.phase.set_ylabel("omega [rad/s]", fontsize=11)
@@ -138,7 +140,6 @@ class _Overview:
         self.guards = [self.axes[0].axhline(0.0, color="tab:red", lw=0.9, ls="--") for _ in range(2)]
         self.phase_guards = [self.phase.axvline(0.0, color="tab:red", lw=0.9, ls="--") for _ in range(2)]
         self.legend = None
-        self.phase_legend = None
         self.legend_key: tuple[float, tuple[str, ...], bool] | None = None
         self.title = _TitleStamp(self.fig, fontsize=13.0, top=0.985)
         self.backgrounds: dict[tuple, np.ndarray] = {}        # key -> the canvas's RGBA pixels
@@ -168,12 +169,9 @@ class _Overview:
         labels.append(f"guard +/-{guard:.3g} rad")
         if self.legend is not None:
             self.legend.remove()
-            self.phase_legend.remove()
-        # Above the time panels and below the phase portrait: off the data.
-        self.legend = self.fig.legend(handles, labels, loc="lower center", bbox_to_anchor=(0.36, 0.9),
-                                      ncols=len(labels), fontsize=11, frameon=False)
-        self.phase_legend = self.phase.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, -0.12),
-                                              ncols=1, fontsize=10, frameon=False)
+        # One legend, below the phase portrait (beside the current panel): off the data.
+        self.legend = self.phase.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, -0.12),
+                                        ncols=1, fontsize=11, frameon=False)
 
     def _background(self, limits: tuple[float, ...], guard: float, ways: tuple[str, ...], same: bool) -> np.ndarray:
         self._set_background(limits, guard, ways, same)

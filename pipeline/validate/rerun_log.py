@@ -32,7 +32,8 @@ import pandas as pd
 from pipeline.columns import column
 from pipeline.model.simulate import SimResult
 from pipeline.validate.compare import logged_dir, switch_indices
-from pipeline.validate.rerun_blueprint import RUN_VIEW_NAMES, axis_ranges, legend_band, run_blueprint, tick_range
+from pipeline.validate.palette import RGB
+from pipeline.validate.rerun_blueprint import RUN_VIEW_NAMES, axis_ranges, run_blueprint, tick_range
 from pipeline.validate.rerun_io import (blueprint_chunks, rerun_executable, save_with_blueprint,  # noqa: F401
                                         verify_rrd, verify_rrds)
 from pipeline.validate.rerun_phase import log_phase_portrait
@@ -53,9 +54,11 @@ def _rgba(r: int, g: int, b: int, a: int = 255) -> int:
     return (r << 24) | (g << 16) | (b << 8) | a
 
 
-RGB = {"measured": (230, 230, 230), "closed_loop": (255, 140, 0), "replay": (0, 170, 255),
-       "guard": (230, 60, 60)}
-MEASURED, CLOSED, REPLAY, GUARD = (_rgba(*RGB[k]) for k in ("measured", "closed_loop", "replay", "guard"))
+MEASURED, CLOSED, REPLAY, GUARD, GUARD_CROSSING, SWITCH_LOGGED = (
+    _rgba(*RGB[k]) for k in ("measured", "closed_loop", "replay", "guard", "guard_crossing", "switch_logged"))
+# Marker sizes on the angle plot: a closed-loop switch lies at a guard crossing when the model is
+# right, so its cross is drawn larger than the crossing's dot, which would hide it otherwise.
+MARKER_SIZES = {"switch (logged)": 4.0, "guard crossing": 3.0, "switch (closed loop)": 6.5}
 # signal -> (kinematics column, SimResult field, unit)
 SIGNALS = {"theta": ("theta_rad", "theta", "rad"), "omega": ("omega_rad_s", "omega", "rad/s"),
            "current": ("current_a", "current_measured", "A")}
@@ -97,14 +100,14 @@ def _measured(kin: pd.DataFrame, name: str) -> np.ndarray | None:
 
 @functools.lru_cache(maxsize=None)
 def _series_style(kind: str, names: tuple[str, ...], colors: tuple, widths: tuple[float, ...] = (1.5,),
-                  marker: str = ""):
+                  marker: str = "", marker_size: float = 4.0):
     """The static style of an entity's series (one per scalar instance), built once per process:
     the same few styles recur in every run, and building one is ~0.2 ms of rerun's Python converters."""
     import rerun as rr
 
     packed = np.array([c if isinstance(c, int) else _rgba(*c) for c in colors], dtype=np.uint32)
     if kind == "points":
-        return rr.SeriesPoints(names=list(names), colors=packed, markers=marker, marker_sizes=4.0)
+        return rr.SeriesPoints(names=list(names), colors=packed, markers=marker, marker_sizes=marker_size)
     return rr.SeriesLines(names=list(names), colors=packed, widths=list(widths))
 
 
@@ -139,7 +142,8 @@ def log_guards(rec, path: str, t: np.ndarray, guard: float) -> None:
 def log_points(rec, path: str, t: np.ndarray, values: np.ndarray, name: str, color, marker: str) -> None:
     import rerun as rr
 
-    rec.log(path, _series_style("points", (name,), (color,), marker=marker), static=True)
+    rec.log(path, _series_style("points", (name,), (color,), marker=marker, marker_size=MARKER_SIZES.get(name, 4.0)),
+            static=True)
     if len(t):
         rec.send_columns(path, indexes=[rr.TimeColumn(TIMELINE, duration=t)],
                          columns=rr.Scalars.columns(scalars=values))
@@ -217,15 +221,14 @@ def _events(rec, rows: list[tuple[float, str, str]]) -> None:
                          columns=rr.TextLog.columns(text=[r[1] for r in rows], level=[r[2] for r in rows]))
 
 
-def theta_band(kin: pd.DataFrame, sims: dict[str, SimResult], guard: float, entries: int) -> tuple[float, float]:
-    """The angle plot's y range: the data and the guards, rounded out to 0.1 rad, with the legend's
-    band on top."""
+def theta_band(kin: pd.DataFrame, sims: dict[str, SimResult], guard: float) -> tuple[float, float]:
+    """The angle plot's y range: the data and the guards, rounded out to 0.1 rad, 3 % to spare (the
+    legend has a view of its own, ``rerun_blueprint._legend``)."""
     values = [np.abs(s.theta) for s in sims.values()] + [np.abs(column(kin, c, dtype=float))
                                                           for c in ("theta_rad",) if c in kin.columns]
     peak = max([guard, *(float(np.nanmax(v)) for v in values)])
     peak = float(np.ceil(peak * 10.0) / 10.0)
-    lo, hi = legend_band(-peak, peak, entries)
-    return round(lo, 3), round(hi, 3)
+    return round(-1.03 * peak, 3), round(1.03 * peak, 3)
 
 
 def residual_ranges(kin: pd.DataFrame, sims) -> tuple:
@@ -264,9 +267,9 @@ def log_run(rec, name: str, kin: pd.DataFrame, sims: dict[str, SimResult], valid
         log_guards(rec, "signals/theta/guards", t, guard)
     if theta is not None:
         sw = switch_indices(d)
-        log_points(rec, "signals/theta/switches_logged", t[sw], theta[sw], "switch (logged)", MEASURED, "diamond")
+        log_points(rec, "signals/theta/switches_logged", t[sw], theta[sw], "switch (logged)", SWITCH_LOGGED, "diamond")
         gc = guard_crossings(theta, guard)
-        log_points(rec, "signals/theta/guard_crossings", t[gc], theta[gc], "guard crossing", GUARD, "circle")
+        log_points(rec, "signals/theta/guard_crossings", t[gc], theta[gc], "guard crossing", GUARD_CROSSING, "circle")
     if len(models) > 1:
         sw_cl = switch_indices(sims["closed_loop"].dir)
         log_points(rec, "signals/theta/switches_closed_loop", t[sw_cl], sims["closed_loop"].theta[sw_cl],
@@ -281,13 +284,6 @@ def log_run(rec, name: str, kin: pd.DataFrame, sims: dict[str, SimResult], valid
     coincide = coincidence(*sims.values()) if len(sims) == 2 else None
     rec.log("stats", rr.TextDocument(stats_markdown(name, validation, derived, coincide),
                                      media_type=rr.MediaType.MARKDOWN), static=True)
-
-
-def legend_entries(sims: dict[str, SimResult]) -> int:
-    """Lines of the angle plot's legend: the models, measured, guards, logged switches, guard
-    crossings, and the closed loop's switches when it departs from the replay."""
-    models = len(model_series(sims))
-    return models + 4 + (models > 1)
 
 
 def portrait_strips(kin: pd.DataFrame, models: dict[str, tuple[SimResult, tuple]]) -> dict:
@@ -376,7 +372,7 @@ def write_rrd(target: Path, name: str, kin: pd.DataFrame, sims: dict[str, SimRes
 
     from pipeline.io.atomic import atomic_path
 
-    ranges = axis_ranges(run_blueprint, theta_band(kin, sims, guard, legend_entries(sims)),
+    ranges = axis_ranges(run_blueprint, theta_band(kin, sims, guard),
                          residual_ranges(kin, sims.values()))
     with atomic_path(Path(target)) as tmp:
         rec = rr.RecordingStream("pdr", recording_id=name)

@@ -9,10 +9,11 @@ squares 2 x 2 at theta = +/- theta_g / extent, and the camera saved in the
 blueprint (``CAMERA``) sees the unit cube whatever the run.
 
 What is drawn in the unit frame (beside ``scaled``, not under it): the axis
-arrows along three edges, their units and extents at the tips, a legend of
+arrows along three edges, their units and extents beside them, a legend of
 coloured labels above the cube's centre, and the guard planes' labels beside
-the angle axis, all opaque; labels are centred on their points, placed where
-even a narrow view (discovery's two portraits) does not cut them.
+the angle axis; labels are centred on their points, placed where even a narrow
+view (discovery's two portraits) does not cut them.  The guard planes are
+translucent with their outline drawn, so the overshoot past a guard shows.
 """
 
 from __future__ import annotations
@@ -20,11 +21,23 @@ from __future__ import annotations
 import numpy as np
 
 AXES = (("current I", "A"), ("omega w", "rad/s"), ("theta", "rad"))
-AXIS_COLORS = ((255, 200, 60), (80, 220, 80), (90, 140, 255))
-GUARD_PLANE_RGBA = (230, 60, 60, 80)
-GUARD_LABEL_RGB = (255, 120, 120)
-# Eye of the saved view, in the unit frame: above the (I > 0, omega < 0) corner, looking at the centre.
-CAMERA = {"position": (2.6, -3.1, 1.9), "look_target": (0.0, 0.0, 0.0), "eye_up": (0.0, 0.0, 1.0)}
+# Mid tones, like ``palette.RGB``: the view's background and its labels' boxes follow the viewer's scheme.
+AXIS_COLORS = ((180, 130, 0), (40, 150, 40), (70, 110, 230))
+# Translucent, with their outline drawn: the overshoot beyond a guard, the part worth seeing, shows
+# through the plane.
+GUARD_PLANE_RGBA = (230, 60, 60, 56)
+# The guards' labels a rose beside the planes' red: a mid tone that reads on both schemes, and not
+# the planes' own colour, by which the viewer test finds the planes on its screenshots.
+GUARD_LABEL_RGB = (200, 60, 95)
+# Eye of the saved view, in the unit frame: above the (I > 0, omega < 0) corner, looking at the
+# centre, near enough that the unit cube and its labels fill the view.
+CAMERA = {"position": (2.5, -3.0, 1.85), "look_target": (0.0, 0.0, 0.05), "eye_up": (0.0, 0.0, 1.0)}
+# The axis arrows lie on edges of the cube's outline as seen from ``CAMERA`` (the edges through the
+# nearest and the farthest corner are seen inside the cube, over the curves): I and theta from the
+# (-1, -1, -1) corner, omega along the right-hand bottom edge.  Labels past the tips of omega and
+# theta; the current's tip is the lowest point of the view, so its label sits under its middle.
+ARROW_ORIGINS = ((-1.0, -1.0, -1.0), (1.0, -1.0, -1.0), (-1.0, -1.0, -1.0))
+LABEL_PLACES = ((0.0, -1.3, -1.1), (1.1, 1.15, -1.0), (-1.0, -1.0, 1.15))
 
 
 def _packed(rgba) -> np.ndarray:
@@ -57,21 +70,21 @@ def log_phase_portrait(rec, origin: str, strips: dict[str, tuple[np.ndarray, tup
             [finite_rows(xyz)], colors=_packed([color]), radii=rr.Radius.ui_points(width)), static=True)
     rec.log(f"{origin}/scaled/guard_planes", rr.Boxes3D(
         centers=[[0.0, 0.0, guard], [0.0, 0.0, -guard]], half_sizes=[[ext[0], ext[1], ext[2] * 0.003]] * 2,
-        colors=_packed([GUARD_PLANE_RGBA] * 2), fill_mode="solid"), static=True)
+        colors=_packed([GUARD_PLANE_RGBA] * 2), fill_mode="TransparentFillMajorWireframe"), static=True)
     g = guard / ext[2]
     rec.log(f"{origin}/guard_labels", rr.Points3D(
         [[-1.0, -1.0, g], [-1.0, -1.0, -g]], radii=rr.Radius.ui_points(0.0), colors=_packed([GUARD_LABEL_RGB] * 2),
         labels=[f"guard +{guard:.3f} rad", f"guard -{guard:.3f} rad"], show_labels=True),
         static=True)
-    corner = -np.ones(3)
-    rec.log(f"{origin}/axes", rr.Arrows3D(vectors=(2.0 * np.eye(3)).tolist(), origins=[corner.tolist()] * 3,
+    starts = np.array(ARROW_ORIGINS)
+    rec.log(f"{origin}/axes", rr.Arrows3D(vectors=(2.0 * np.eye(3)).tolist(), origins=starts.tolist(),
                                           colors=_packed(AXIS_COLORS), radii=rr.Radius.ui_points(1.5)), static=True)
-    rec.log(f"{origin}/axis_labels", rr.Points3D(   # at the arrows' tips, clear of the guards' labels
-        (corner + 2.15 * np.eye(3)).tolist(), radii=rr.Radius.ui_points(0.0), colors=_packed(AXIS_COLORS),
+    rec.log(f"{origin}/axis_labels", rr.Points3D(   # clear of the curves and of the guards' labels
+        list(LABEL_PLACES), radii=rr.Radius.ui_points(0.0), colors=_packed(AXIS_COLORS),
         labels=[f"{n} [{u}], \u00b1{e:.3g}" for (n, u), e in zip(AXES, ext)], show_labels=True), static=True)
     names = list(strips)
     rec.log(f"{origin}/legend", rr.Points3D(
-        [[0.0, 0.0, 1.3 + 0.3 * (len(names) - 1 - i)] for i in range(len(names))],
+        [[0.0, 0.0, 1.4 + 0.22 * (len(names) - 1 - i)] for i in range(len(names))],
         radii=rr.Radius.ui_points(4.0), colors=_packed([strips[n][1] for n in names]), labels=names,
         show_labels=True), static=True)
     return ext

@@ -176,14 +176,24 @@ _MSE_UNITS = {"theta": "rad²", "omega": "(rad/s)²", "current": "A²"}
 
 
 def overview_title(run: str, validation: dict) -> str:
-    """The overview's title: the run and its replay MSE per signal, with units."""
+    """The overview's title: the run and the MSE of each way per signal, units once.
+
+    Both ways, since the replay can be close while the closed loop, the model's
+    own switching, is far off; one figure for both when they coincide."""
     if not validation.get("replay"):
         return f"{run}   not compared with the model (no angle, no dir): what was logged"
-    parts = []
-    for signal, unit in _MSE_UNITS.items():
-        e = (validation.get("replay") or {}).get("signals", {}).get(signal)
-        parts.append(f"{signal} " + ("-" if e is None or e["mse"] is None else f"{e['mse']:.3g} {unit}"))
-    return f"{run}   MSE replay: " + ", ".join(parts)
+    units = ", ".join(_MSE_UNITS.values())
+
+    def mses(way: str) -> str:
+        signals = (validation.get(way) or {}).get("signals", {})
+        return ", ".join("-" if (e := signals.get(sig)) is None or e["mse"] is None else f"{e['mse']:.3g}"
+                         for sig in _MSE_UNITS)
+
+    ways = [("replay", mses("replay"))]
+    if validation.get("closed_loop"):
+        closed = mses("closed_loop")
+        ways = [("closed loop = replay", closed)] if closed == ways[0][1] else [*ways, ("closed loop", closed)]
+    return f"{run}   MSE theta, omega, current [{units}]   " + "   ".join(f"{w}: {v}" for w, v in ways)
 
 
 def summary_row(validation: dict) -> dict:

@@ -34,6 +34,11 @@ NO_DISPLAY = ("no display to open the viewer on (neither DISPLAY nor WAYLAND_DIS
               "on a cluster node): run `pdr view --web RUN...` and open the address it prints in a browser")
 
 
+# The viewer keeps a layout per application id: the side-by-side files, whose views look at
+# /runs/<name>/..., have their own, so a run's recording (application id "pdr") is never shown in it.
+SIDE_BY_SIDE_APP = "pdr-side-by-side"
+
+
 def display_available(environ=os.environ, platform: str = sys.platform) -> bool:
     """A native window can open: on Linux and the BSDs only with an X11 or Wayland display."""
     if not platform.startswith(("linux", "freebsd", "openbsd", "netbsd")):
@@ -47,7 +52,7 @@ def side_by_side_rrd(rrds: dict[str, Path], target: Path) -> Path:
     from rerun.chunk import RrdReader
 
     from pipeline.io.atomic import atomic_path
-    from pipeline.validate.rerun_blueprint import legend_band, side_by_side_blueprint
+    from pipeline.validate.rerun_blueprint import side_by_side_blueprint
     from pipeline.validate.rerun_io import blueprint_chunks, save_with_blueprint
 
     moved, peak = [], 0.0
@@ -60,11 +65,11 @@ def side_by_side_rrd(rrds: dict[str, Path], target: Path) -> Path:
                 peak = max(peak, float(np.nanmax(np.abs(values))))
             moved.append(chunk.with_entity_path(f"/runs/{name}{chunk.entity_path}"))
     peak = float(np.ceil(peak * 10.0) / 10.0) or 1.0
-    # the band for the longest legend (closed loop and replay apart: 7 lines)
-    layout = blueprint_chunks(side_by_side_blueprint, tuple(rrds), legend_band(-peak, peak, 7))
+    # one angle range for every column, the data of all with 3 % to spare (the legends have views of their own)
+    layout = blueprint_chunks(side_by_side_blueprint, tuple(rrds), (round(-1.03 * peak, 3), round(1.03 * peak, 3)))
     with atomic_path(Path(target)) as tmp:
-        rec = rr.RecordingStream("pdr", recording_id="side-by-side:" + "+".join(rrds))
-        save_with_blueprint(rec, tmp, layout)
+        rec = rr.RecordingStream(SIDE_BY_SIDE_APP, recording_id="side-by-side:" + "+".join(rrds))
+        save_with_blueprint(rec, tmp, layout, application_id=SIDE_BY_SIDE_APP)
         rr.send_chunks(moved, recording=rec)
         rec.flush()
         rec.disconnect()

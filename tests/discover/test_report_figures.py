@@ -8,7 +8,8 @@ import pytest
 from PIL import Image
 
 from pipeline.discover.candidates import parameter_of
-from pipeline.discover.report import OUTCOME_COLORS, candidates_png, markdown, outcomes
+from pipeline.discover.report import (OUTCOME_COLORS, candidates_figure, candidates_png, markdown, outcomes,
+                                     score_limit)
 from pipeline.discover.stage import discover, discovery_json
 from pipeline.model.effects import make_effect
 from tests.discover.synthetic import rig_kinematics
@@ -56,6 +57,51 @@ def test_candidates_png_paints_only_the_adopted_bars_green(backlash_discovery):
     bars = np.count_nonzero(np.diff(rows) > 1) + 1 if len(rows) else 0
     assert bars == outcomes(d).count("adopted") == 1
     assert OUTCOME_COLORS["adopted"] == "tab:green"
+
+
+def test_candidates_figure_one_labelled_bar_per_candidate_on_axes_fitted_to_the_scores(backlash_discovery):
+    """Every round's panel holds one bar per candidate (none left empty by a 0..1 axis when its scores
+    are ~0), each named with what became of it and why; rejected and screened out look different."""
+    d, doc = backlash_discovery
+    fig = candidates_figure(d)
+    fates = outcomes(d)
+    styles = {}
+    first = 0
+    for ax, rnd in zip(fig.axes, d.selection.rounds):
+        scores = [max(a.score, 0.0) for a in rnd]
+        bars = ax.patches
+        assert len(bars) == len(rnd)
+        lo, hi = ax.get_xlim()
+        assert lo == 0.0 and hi == score_limit(scores) >= max(scores)
+        if max(scores) < 0.5:
+            assert hi <= max(0.01, 2.3 * max(scores))                       # fitted, not 0..1
+        assert all(b.get_width() >= 0.005 * hi for b in bars)                # every bar shows
+        labels = [t.get_text() for t in ax.get_yticklabels()]
+        shown = dict(zip((t.get_position()[1] for t in ax.get_yticklabels()), labels))
+        for bar, fate, c in zip(bars, fates[first:first + len(rnd)], doc["candidates"][first:]):
+            label = shown[bar.get_y() + bar.get_height() / 2]
+            assert label.startswith(c["name"] + " - ")
+            if fate == "rejected":
+                assert "rejected: failed " + next(k for k, ok in c["checks"].items() if not ok) in label
+            if fate == "screened out":
+                assert "screened out" in label
+            styles.setdefault(fate, set()).add((bar.get_facecolor(), bar.get_hatch()))
+        first += len(rnd)
+    assert len(fig.axes) == len(d.selection.rounds)
+    assert {"rejected", "screened out"} <= set(styles) and not styles["rejected"] & styles["screened out"]
+
+
+def test_the_base_models_residual_shows_where_the_augmented_one_lies_on_it(backlash_discovery):
+    """The current's residual barely changes with backlash added: the base model's pale orange band
+    still shows around the augmented model's blue line."""
+    from pipeline.discover.report import residuals_png
+
+    d, _doc = backlash_discovery
+    with Image.open(io.BytesIO(residuals_png(d))) as im:
+        rgb = np.asarray(im.convert("RGB"), dtype=int)
+    band = np.all(np.abs(rgb - (255, 185, 122)) <= 12, axis=2)       # tab:orange at alpha 0.55 on white
+    current_panel = band[2 * rgb.shape[0] // 3:]
+    assert current_panel.sum() > 1000
 
 
 def _figures(out):

@@ -103,7 +103,8 @@ def test_legend_names_one_line_when_closed_loop_and_replay_coincide(runs):
     overview_png("clean", kin, {"closed_loop": sims["replay"], "replay": sims["replay"]}, guard)
     labels = [t.get_text() for t in plots._FIGURE.legend.get_texts()]
     assert labels == ["measured", "closed loop = replay", f"guard +/-{guard:.3g} rad"]
-    assert [t.get_text() for t in plots._FIGURE.phase_legend.get_texts()] == labels
+    fig = plots._FIGURE.fig
+    assert len(fig.legends) + sum(ax.get_legend() is not None for ax in fig.axes) == 1     # drawn once
     kin, sims, guard = runs["weak"]
     assert not coincide(sims["closed_loop"], sims["replay"])
     overview_png("weak", kin, sims, guard)
@@ -143,3 +144,38 @@ def test_backgrounds_shared_through_a_folder_give_the_figure_drawn_alone(runs, t
         for path in tmp_path.iterdir():
             path.write_bytes(path.read_bytes()[:1000])          # torn: not whole backgrounds
         assert _Overview().render("clean", *runs["clean"]) == alone["clean"]
+
+
+def test_the_measured_line_shows_over_the_model_lines(runs):
+    """Where the replay follows the measurement, the measurement is still a line of its own colour,
+    at least two pixels thick, over the wider model line (not a hairline lost in it)."""
+    import pipeline.validate.plots as plots
+
+    rgb = _pixels(overview_png("clean", *runs["clean"])).astype(int)
+    fig = plots._FIGURE
+    for i, ax in enumerate(fig.axes):
+        x0, y0, x1, y1 = ax.bbox.extents
+        h = rgb.shape[0]
+        panel = rgb[int(h - y1) + 2:int(h - y0) - 2, int(x0) + 2:int(x1) - 2]
+        measured = np.all(np.abs(panel - (51, 51, 51)) <= 6, axis=2)
+        per_column = measured.sum(axis=0)
+        assert (per_column > 0).mean() > 0.95, i                    # along the whole run
+        assert np.median(per_column[per_column > 0]) >= 2, i        # and not a hairline
+
+
+def test_the_title_gives_both_ways_mse_with_their_numbers(runs):
+    """The title's figures are the validation's: the replay's and the closed loop's MSE per signal,
+    one set when the two ways coincide."""
+    from pipeline.validate.compare import compare
+    from pipeline.validate.stage import overview_title
+
+    kin, sims, _guard = runs["weak"]
+    spec = default_config().plant_spec()
+    validation = compare(kin, spec, sims)
+    title = overview_title("weak", validation)
+    figures = {way: ", ".join(f"{validation[way]['signals'][s]['mse']:.3g}" for s in ("theta", "omega", "current"))
+               for way in ("replay", "closed_loop")}
+    assert f"replay: {figures['replay']}" in title and f"closed loop: {figures['closed_loop']}" in title
+    assert figures["replay"] != figures["closed_loop"]
+    same = compare(kin, spec, {"closed_loop": sims["replay"], "replay": sims["replay"]})
+    assert overview_title("clean", same).endswith(f"closed loop = replay: {figures['replay']}")

@@ -201,7 +201,10 @@ def test_blueprint_is_saved_with_every_view_and_opens_at_the_end(rrd):
     residual = np.abs(kin["current_a"].to_numpy() - sims["replay"].current_measured).max()
     assert by_name["residual current [A]"] == list(tick_range(residual))
     lo, hi = by_name["theta [rad]"]
-    assert lo < -np.abs(kin["theta_rad"]).max() and hi > 2 * np.abs(kin["theta_rad"]).max()   # the legend's band
+    peak = max(np.abs(kin["theta_rad"]).max(), *(np.abs(s.theta).max() for s in sims.values()))
+    assert lo == -hi and peak < hi <= 1.03 * (peak + 0.1)          # the data, no band kept for a legend
+    legend_low, _ = by_name["legend"]
+    assert legend_low > 10 * peak                                   # the legend's view shows no data
     assert by_name["omega [rad/s]"] is None
 
 
@@ -245,6 +248,7 @@ def test_residual_ranges_hold_the_data_and_a_labelled_gridline():
         lo, hi = tick_range(peak)
         assert lo == -hi and hi >= peak
         step = 10.0 ** np.floor(np.log10(hi))              # the largest power of ten inside
-        assert 2 * hi / step <= 7.0, peak                  # few enough gridlines for the viewer to label
-        assert peak / hi >= 0.26                           # and the data still fill a quarter of the plot
+        assert 2 * hi / step <= 9.0 + 1e-9, peak          # few enough gridlines for the viewer to label
+        assert peak / hi >= 0.39                           # and the data fill much of the plot
+    assert tick_range(3.5) == (-3.85, 3.85) and tick_range(0.04) == (-0.044, 0.044)      # not +/-10, +/-0.115
     assert tick_range(0.0) is None and tick_range(float("nan")) is None

@@ -74,6 +74,48 @@ def test_side_by_side_recording_holds_every_run_under_its_name(processed, tmp_pa
             "delayed: trajectory (I, w, theta)"} <= views
 
 
+def _blueprint_views(reader) -> dict[str, dict]:
+    """Display name -> the view's blueprint components (origin, its y range when it has one)."""
+    by_id: dict[str, dict] = {}
+    for ch in reader.stream(store=reader.blueprints()[0]).to_chunks():
+        rb = ch.to_record_batch()
+        view_id = ch.entity_path.split("/")[2] if ch.entity_path.startswith("/view/") else None
+        if view_id is None:
+            continue
+        entry = by_id.setdefault(view_id, {})
+        for column, key in (("ViewBlueprint:display_name", "name"), ("ViewBlueprint:space_origin", "origin"),
+                            ("ScalarAxis:range", "range")):
+            if column in rb.schema.names:
+                entry[key] = rb.column(column).to_pylist()[0][0]
+    return {v["name"]: v for v in by_id.values() if "name" in v}
+
+
+def _series_names(reader, entity: str) -> list[str]:
+    return [n for ch in reader.stream().to_chunks() if ch.entity_path == entity and ch.is_static
+            for n in (ch.to_record_batch().column("SeriesLines:names").to_pylist()[0] or [])]
+
+
+def test_side_by_side_gives_each_run_its_legend_residuals_and_statistics(processed, tmp_path):
+    """Each column's legend shows its own run's series (the clean run's "closed loop = replay", the
+    delayed run's closed loop and replay apart), each run has its residuals and statistics, and the
+    angle's range is the data's, not a band for a legend."""
+    runs = {name: processed / name / f"{name}.rrd" for name in ("clean", "delayed")}
+    reader = RrdReader(side_by_side_rrd(runs, tmp_path / "both.rrd"))
+    views = _blueprint_views(reader)
+    for name in runs:
+        assert views[f"{name}: legend"]["origin"] == f"/runs/{name}/signals/theta"
+        for sig, unit in (("theta", "rad"), ("omega", "rad/s"), ("current", "A")):
+            assert views[f"{name}: residual {sig} [{unit}]"]["origin"] == f"/runs/{name}/residuals/{sig}"
+        assert views[f"{name}: statistics"]["origin"] == f"/runs/{name}/stats"
+    assert "closed loop = replay" in _series_names(reader, "/runs/clean/signals/theta")
+    assert {"closed loop", "replay"} <= set(_series_names(reader, "/runs/delayed/signals/theta"))
+    peak = max(np.nanmax(np.abs(np.asarray(v, dtype=float))) for ch in reader.stream().to_chunks()
+               if ch.entity_path.endswith("/signals/theta") and not ch.is_static
+               for v in ch.to_record_batch().column("Scalars:scalars").to_pylist())
+    lo, hi = views["clean: theta [rad]"]["range"]
+    assert lo == -hi and peak < hi <= 1.03 * (peak + 0.1)
+
+
 @pytest.mark.slow
 def test_web_serves_the_viewer_page_and_the_side_by_side_recording(processed, tmp_path):
     port = free_port_pair()

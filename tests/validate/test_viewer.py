@@ -5,6 +5,12 @@ Needs a Vulkan driver: ``make test`` installs Debian's mesa-vulkan-drivers
 127.0.0.1 on a free port (the CLI's default bind is 0.0.0.0, so the spawned
 executable is a two-line wrapper that adds ``--bind 127.0.0.1``).
 
+Colours are checked in both of the viewer's schemes: ``pdr view --web`` is
+opened in headless Chromium (``tests.validate.browser``) with the page's
+``prefers-color-scheme`` emulated light and dark, at 1600 x 1000, and the
+measured line's contrast against the plots' background is read from the
+screenshots.
+
 The 3-D phase portrait is checked on its pixels: the guard planes (their red
 is found by colour) must lie inside the view from the saved camera, and seen
 from straight above they must be squares -- which they are only when the
@@ -29,7 +35,10 @@ from pipeline.model.effects import make_effect
 from pipeline.runs import RunPaths
 from pipeline.validate.rerun_blueprint import DISCOVERY_VIEW_NAMES
 from pipeline.validate.rerun_io import rerun_executable, save_with_blueprint
+from pipeline.validate.palette import RGB, contrast_ratio, relative_luminance
 from pipeline.validate.rerun_log import VIEW_NAMES
+from pipeline.validate.view import serve_web
+from tests.validate.browser import Browser, wait_for
 from pipeline.validate.stage import validate_run
 from tests.discover.synthetic import rig_kinematics
 from tests.validate.net import free_port, free_port_pair
@@ -73,7 +82,22 @@ def recordings(tmp_path_factory):
     result = CliRunner().invoke(app, ["discover", str(csv), "--out", str(work / "discovery")])
     assert result.exit_code == 0, result.output
     return {"run": paths.rrd, "discovery": work / "discovery" / "discovery.rrd",
-            "unscaled": _scale_on_the_origin(paths.rrd, work / "unscaled.rrd")}
+            "unscaled": _scale_on_the_origin(paths.rrd, work / "unscaled.rrd"),
+            "another_run": _another_run(paths.rrd, work / "another.rrd")}
+
+
+def _another_run(src, target):
+    """The run's file as another run would be written: application id "pdr", a recording id of its
+    own, the run's layout (a run the viewer has not opened yet)."""
+    reader = RrdReader(src)
+    layout = reader.store(store=reader.blueprints()[0]).stream().collect()
+    chunks = [ch for ch in reader.stream().to_chunks() if ch.entity_path != "/__properties"]
+    rec = rr.RecordingStream("pdr", recording_id="another")
+    save_with_blueprint(rec, target, layout)
+    rr.send_chunks(chunks, recording=rec)
+    rec.flush()
+    rec.disconnect()
+    return target
 
 
 def _scale_on_the_origin(src, target):
@@ -229,9 +253,91 @@ def _side_by_side_over_http(viewer, run, folder, shots) -> None:
     assert _screenshot(viewer, shots, "side-by-side.png").std() > 10
 
 
+def _run_after_side_by_side(viewer, run) -> None:
+    """A run the viewer has not shown yet, opened after a side-by-side file: its own layout, every
+    view healthy (the side-by-side files have an application id of their own, ``SIDE_BY_SIDE_APP``)."""
+    state, recording = _open(viewer, run)
+    _check_layout(state, recording, VIEW_NAMES)
+
+
 def test_recordings_open_on_their_layouts_with_the_portraits_scaled(viewer, recordings, shots, tmp_path):
     """One test, so that one pytest-xdist worker starts one viewer and makes the recordings once."""
     _run_recording(viewer, recordings["run"], shots)
     _discovery_recording(viewer, recordings["discovery"], shots)
     _unscaled_recording(viewer, recordings["unscaled"])
     _side_by_side_over_http(viewer, recordings["run"], tmp_path, shots)
+    _run_after_side_by_side(viewer, recordings["another_run"])
+
+
+# The signal plots of a run's layout in a 1600 x 1000 window, as shares of its width and height:
+# the left column's left part (3/5 of 3/5), between the top bar and the mode lane.
+SIGNAL_PLOTS = (slice(0.07, 0.80), slice(0.03, 0.35))
+LINE_TOLERANCE = 10            # per channel: the line's core pixels, not its anti-aliased edge
+
+
+def _plots(rgb: np.ndarray) -> np.ndarray:
+    h, w, _ = rgb.shape
+    rows, cols = SIGNAL_PLOTS
+    return rgb[int(rows.start * h):int(rows.stop * h), int(cols.start * w):int(cols.stop * w)].reshape(-1, 3)
+
+
+def line_contrast(png: bytes) -> tuple[float, tuple[int, ...], int]:
+    """(contrast ratio, background, pixel count) of the measured line in the signal plots: the
+    background is their most frequent colour, the line the median of the pixels of its colour."""
+    import io
+
+    pixels = _plots(np.asarray(Image.open(io.BytesIO(png)).convert("RGB"), dtype=int))
+    colours, counts = np.unique(pixels, axis=0, return_counts=True)
+    background = tuple(int(c) for c in colours[counts.argmax()])
+    line = pixels[np.abs(pixels - np.array(RGB["measured"])).max(axis=1) <= LINE_TOLERANCE]
+    if not len(line):
+        return 0.0, background, 0
+    return contrast_ratio(tuple(np.median(line, axis=0)), background), background, len(line)
+
+
+def _settled_screenshot(browser: Browser) -> bytes | None:
+    """A screenshot once the recording is drawn: the measured line is there and two shots agree."""
+    previous: list[bytes] = []
+
+    def drawn():
+        try:
+            png = browser.screenshot()
+        except RuntimeError:            # the page is between documents while it navigates
+            return None
+        done = line_contrast(png)[2] > 2000 and previous and previous[-1] == png
+        previous.append(png)
+        return png if done else None
+
+    return wait_for(drawn, timeout=180, step=2.0)
+
+
+def test_the_measured_line_reads_in_the_light_and_the_dark_scheme(recordings, shots):
+    """``pdr view --web`` in Chromium, light then dark: the measured line stands out from the plots'
+    background by >= 3:1 in both (WCAG's figure for graphics), where white, the earlier colour,
+    gives ~1.3:1 on the light scheme."""
+    from tests.validate.net import free_port_pair
+
+    server = serve_web(recordings["run"], port=free_port_pair())
+    try:
+        with Browser(1600, 1000) as browser:
+            for scheme in ("light", "dark"):
+                browser.color_scheme(scheme)
+                browser.open(server.url)
+                png = _settled_screenshot(browser)
+                assert png is not None, f"the web viewer did not draw the recording in the {scheme} scheme"
+                with open(os.path.join(shots, f"web-{scheme}.png"), "wb") as fh:
+                    fh.write(png)
+                assert Image.open(io_bytes(png)).size == (1600, 1000)
+                ratio, background, _n = line_contrast(png)
+                assert (relative_luminance(background) > 0.8) == (scheme == "light"), (scheme, background)
+                assert ratio >= 3.0, f"measured line at {ratio:.2f}:1 on the {scheme} scheme's {background}"
+                if scheme == "light":
+                    assert contrast_ratio((230, 230, 230), background) < 3.0      # the check can fail
+    finally:
+        server.stop()
+
+
+def io_bytes(data: bytes):
+    import io
+
+    return io.BytesIO(data)
