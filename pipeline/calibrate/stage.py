@@ -66,7 +66,8 @@ class Calibration:
             "units": {k: UNITS[k] for k in MODEL_KEYS},
             "convention": CONVENTION,
             "fit": {"chi2": self.fit.data_chi2, "samples": self.fit.n_data, "free_parameters": self.fit.k,
-                    "aic": self.fit.aic, "bic": self.fit.bic, "evidence_scale": self.fit.scale,
+                    "aic": self.fit.aic, "bic": self.fit.bic,
+                    "inflation": [float(f) for f in self.fit.factors],
                     "converged": self.fit.success, "evaluations": self.fit.nfev},
         })
 

@@ -16,7 +16,7 @@ over-counts the evidence; each recording's signal is weighted down by its ``infl
 chi-square, at least 1, times the residual's autocorrelation time), as a quasi-likelihood does, so
 the priors and the covariance weigh what the data really hold.  Intervals are profile-likelihood ones (as lmfit's
 ``conf_interval``): the parameter is moved, the others refitted, until ``-2 log L`` rises by the
-chi-square quantile times ``scale``.
+chi-square quantile.
 """
 
 from __future__ import annotations
@@ -61,7 +61,6 @@ class FitResult:
     data_chi2: float                     # sum of squared whitened data residuals
     prior_chi2: float
     n_data: int
-    scale: float                         # further widening of the intervals (1: the inflation is in the weights)
     cov_internal: np.ndarray             # covariance of x
     success: bool
     nfev: int
@@ -118,7 +117,7 @@ class FitResult:
         return _objective(self.residual, self.unknowns, x)
 
     def profile_interval(self, name: str, level: float = 0.95, max_nfev: int = 8) -> tuple[float, float]:
-        """Where the profiled ``-2 log`` posterior rises by the chi-square quantile times ``scale``."""
+        """Where the profiled ``-2 log`` posterior rises by the chi-square quantile."""
         key = (name, level)
         if key not in self._profiles:
             self._profiles[key] = _profile(self, self.names.index(name), level, max_nfev)
@@ -217,7 +216,7 @@ def fit(residual: Residual, unknowns: Sequence[Unknown], *, max_nfev: int = 200,
     p = _prior_rows(unknowns, x)
     cov = np.linalg.pinv(jac.T @ jac) if unknowns else np.zeros((0, 0))
     return FitResult(unknowns=unknowns, x=x, data_chi2=float(r @ r), prior_chi2=float(p @ p), n_data=len(r),
-                     scale=1.0, cov_internal=cov, success=ok, nfev=nfev, residual=weighted,
+                     cov_internal=cov, success=ok, nfev=nfev, residual=weighted,
                      segments=list(segments), factors=np.asarray(factors))
 
 
@@ -225,7 +224,7 @@ def _profile(res: FitResult, i: int, level: float, max_nfev: int) -> tuple[float
     """Profile-likelihood interval of unknown ``i``: each side, the signed root of the profiled rise,
     interpolated to the quantile (a secant on the signed root, which is linear for a quadratic)."""
     u = res.unknowns[i]
-    target = float(np.sqrt(chi2_dist.ppf(level, 1) * res.scale))
+    target = float(np.sqrt(chi2_dist.ppf(level, 1)))
     best = res.objective(res.x)
     others = [j for j in range(res.k) if j != i]
     lo_b, hi_b = u.internal_bounds
