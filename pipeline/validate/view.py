@@ -47,7 +47,7 @@ def side_by_side_rrd(rrds: dict[str, Path], target: Path) -> Path:
 
     from pipeline.io.atomic import atomic_path
     from pipeline.validate.rerun_blueprint import legend_band, side_by_side_blueprint
-    from pipeline.validate.rerun_io import blueprint_chunks, save_with_blueprint
+    from pipeline.validate.rerun_io import blueprint_chunks, write_recording
 
     moved, peak = [], 0.0
     for name, path in rrds.items():
@@ -62,11 +62,7 @@ def side_by_side_rrd(rrds: dict[str, Path], target: Path) -> Path:
     # the band for the longest legend (closed loop and replay apart: 7 lines)
     layout = blueprint_chunks(side_by_side_blueprint, tuple(rrds), legend_band(-peak, peak, 7))
     with atomic_path(Path(target)) as tmp:
-        rec = rr.RecordingStream("pdr", recording_id="side-by-side:" + "+".join(rrds))
-        save_with_blueprint(rec, tmp, layout)
-        rr.send_chunks(moved, recording=rec)
-        rec.flush()
-        rec.disconnect()
+        write_recording(tmp, "side-by-side:" + "+".join(rrds), layout, lambda rec: rr.send_chunks(moved, recording=rec))
     return Path(target)
 
 
