@@ -20,7 +20,7 @@ from pipeline.run.stamp import stamp_for
 from tests.cluster.helpers import CODE
 
 RECORDINGS = 200
-DURATION_S = 1.0            # 20 control periods: every stage runs, each in a few milliseconds
+DURATION_S = 3.0            # 60 control periods, two reversals at the guards: every stage has work, briefly
 WARM_UP = 8                 # recordings after which the worker's caches (layouts, figure backgrounds) are filled
 # What the worker may gain after its warm-up.  Flat, it stays within a few MB of memory and holds the
 # same threads and files; one stream left per recording would cost four threads (a stream and its
