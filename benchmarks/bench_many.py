@@ -34,15 +34,36 @@ MAX_RSS_MB = 1536
 TARGET_RATE = 15.0
 
 
-def _proc_status(pid: int) -> tuple[int, int, float] | None:
-    """(parent pid, threads, resident MB) of a process, None once it is gone."""
+def _proc_status(pid: int) -> tuple[int, float] | None:
+    """(threads, resident MB) of a process, None once it is gone."""
     try:
         fields = dict(line.split(":", 1) for line in Path(f"/proc/{pid}/status").read_text().splitlines()
                       if ":" in line)
     except OSError:
         return None
     rss_kb = int(fields.get("VmRSS", "0 kB").split()[0])     # none for a process exiting
-    return int(fields["PPid"]), int(fields["Threads"]), rss_kb / 1024
+    return int(fields["Threads"]), rss_kb / 1024
+
+
+def _descendants(root: int) -> dict[int, int]:
+    """Every process under ``root`` -> its parent, walked down ``/proc/<pid>/task/<tid>/children``
+    (a few dozen small reads, where a scan of all /proc would read every process on the machine)."""
+    parents, todo = {}, [root]
+    while todo:
+        pid = todo.pop()
+        try:
+            tids = os.listdir(f"/proc/{pid}/task")
+        except OSError:
+            continue
+        for tid in tids:
+            try:
+                children = Path(f"/proc/{pid}/task/{tid}/children").read_text().split()
+            except OSError:
+                continue
+            for child in map(int, children):
+                parents[child] = pid
+                todo.append(child)
+    return parents
 
 
 def _role(pid: int, root: int, parents: dict[int, int]) -> str:
@@ -73,19 +94,16 @@ class Peaks:
 
 
 def _sample_tree(root: int, peaks: Peaks, stop: threading.Event) -> None:
-    """Until ``stop``: every process descending from ``root`` (the scan of /proc finds them all)."""
+    """Until ``stop``: the threads and resident memory of ``root`` and every process under it."""
     roles: dict[int, str] = {}
     while not stop.is_set():
-        status = {int(p): s for p in os.listdir("/proc") if p.isdigit() and (s := _proc_status(int(p)))}
-        parents = {pid: s[0] for pid, s in status.items()}
-        for pid, (_ppid, threads, rss) in status.items():
-            ancestor = pid
-            while ancestor not in (root, 0, 1) and ancestor in parents:
-                ancestor = parents[ancestor]
-            if ancestor != root:
+        parents = _descendants(root)
+        for pid in (root, *parents):
+            status = _proc_status(pid)
+            if status is None:
                 continue
             role = roles.setdefault(pid, _role(pid, root, parents))
-            peaks.see(f"{role} {pid}" if role == "worker" else role, threads, rss)
+            peaks.see(f"{role} {pid}" if role == "worker" else role, *status)
         peaks.samples += 1
         stop.wait(SAMPLE_S)
 
