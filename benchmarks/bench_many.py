@@ -79,7 +79,9 @@ def _role(pid: int, root: int, parents: dict[int, int]) -> str:
         return "rerun rrd verify"
     if parents.get(pid) == root:
         return "forkserver" if "forkserver" in cmd else "resource tracker" if "resource_tracker" in cmd else "child"
-    return "worker" if parents.get(parents.get(pid, 0)) == root else "other descendant"
+    if parents.get(parents.get(pid, 0)) == root:
+        return "worker"
+    return "a worker's child before its exec" if "forkserver" in cmd else "other descendant"
 
 
 @dataclass
@@ -95,21 +97,20 @@ class Peaks:
 
 def _sample_tree(root: int, peaks: Peaks, stop: threading.Event) -> None:
     """Until ``stop``: the threads and resident memory of ``root`` and every process under it."""
-    roles: dict[int, str] = {}
     while not stop.is_set():
         parents = _descendants(root)
         for pid in (root, *parents):
             status = _proc_status(pid)
             if status is None:
                 continue
-            role = roles.setdefault(pid, _role(pid, root, parents))
+            role = _role(pid, root, parents)        # each time: a forked child becomes rerun at its exec
             peaks.see(f"{role} {pid}" if role == "worker" else role, *status)
         peaks.samples += 1
         stop.wait(SAMPLE_S)
 
 
 def run_sampled(raw: Path, processed: Path) -> tuple[float, int, str, Peaks]:
-    """The ``pdr run`` command on ``raw``: wall seconds, exit status, its last line, the peaks."""
+    """The ``pdr run`` command on ``raw``: wall seconds, exit status, its first line (the summary), the peaks."""
     pdr = Path(sys.executable).with_name("pdr")
     peaks, stop = Peaks(), threading.Event()
     t0 = time.perf_counter()
@@ -156,11 +157,12 @@ def main(sizes: tuple[int, ...] = SIZES) -> None:
                   f"{first}")
             worst_threads = max(t for t, _r in peaks.by_role.values())
             worst_rss = max(r for _t, r in peaks.by_role.values())
+            within = worst_threads <= MAX_THREADS and worst_rss <= MAX_RSS_MB
             print(f"  peaks over {peaks.samples} samples of /proc, every {SAMPLE_S * 1000:.0f} ms: "
                   f"{worst_threads} threads (limit {MAX_THREADS}), {worst_rss:.0f} MB resident "
-                  f"(limit {MAX_RSS_MB} MB) in the worst process")
+                  f"(limit {MAX_RSS_MB} MB) in the worst process: {'within' if within else 'OVER'} the limits")
             for role, (threads, rss) in sorted(peaks.by_role.items()):
-                print(f"    {role:<24} {threads:4d} threads  {rss:7.0f} MB")
+                print(f"    {role:<34} {threads:4d} threads  {rss:7.0f} MB")
             shutil.rmtree(processed)
 
 

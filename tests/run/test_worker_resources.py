@@ -24,7 +24,7 @@ DURATION_S = 3.0            # 60 control periods, two reversals at the guards: e
 WARM_UP = 8                 # recordings after which the worker's caches (layouts, figure backgrounds) are filled
 # What the worker may gain after its warm-up.  Flat, it stays within a few MB of memory and holds the
 # same threads and files; one stream left per recording would cost four threads (a stream and its
-# layout's, each with its batcher) and ~1.5 MB per recording: ~770 threads and ~290 MB here.
+# layout's, each with its batcher) and ~2 MB per recording: ~770 threads and ~400 MB here.
 MAX_EXTRA_THREADS = 2
 MAX_EXTRA_RSS_MB = 25
 MAX_EXTRA_FILES = 2
