@@ -102,11 +102,17 @@ def end_streams() -> None:
     stream, thousands in a ``pdr run`` worker.  The binding ``rr.init`` calls to
     destroy orphaned streams is the only one that ends them; it also flushes
     the live ones and clears the global recording, which pdr never sets (it
-    logs to explicit streams only).
+    logs to explicit streams only).  A live stream that cannot flush (``pdr
+    record``'s view of a viewer that cannot be reached) makes it raise before
+    it ends any: the file at hand was flushed and closed already, so that is
+    no failure of it, and the orphans are ended by the next call that succeeds.
     """
     import rerun_bindings as bindings
 
-    bindings.flush_and_cleanup_orphaned_recordings()
+    try:
+        bindings.flush_and_cleanup_orphaned_recordings()
+    except RuntimeError:
+        pass
 
 
 def save_with_blueprint(rec, path: Path, chunks, application_id: str = "pdr",

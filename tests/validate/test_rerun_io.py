@@ -43,3 +43,17 @@ def test_a_stream_whose_logging_fails_is_ended_too(tmp_path):
             write_recording(tmp_path / f"bad{i}.rrd", f"bad{i}", blueprint_chunks(run_blueprint), fail)
     end_streams()                       # the last failure's traceback held its stream until now
     assert psutil.Process().num_threads() <= before
+
+
+@pytest.mark.slow
+def test_a_live_stream_that_cannot_flush_fails_no_file(tmp_path):
+    """``pdr record --connect URL`` whose viewer cannot be reached: its stream's flush fails, and the
+    files written meanwhile are still complete.  Slow: rerun tries to connect for seconds each time."""
+    live = rr.RecordingStream("pdr-record-test", recording_id="unreachable")
+    live.connect_grpc("rerun+http://127.0.0.1:9/proxy")         # the discard port: nothing listens
+    live.log("x", rr.Scalars([1.0]))
+    try:
+        write_recording(tmp_path / "r.rrd", "r", blueprint_chunks(run_blueprint), _log_a_scalar)
+    finally:
+        live.disconnect()
+    assert verify_rrds([tmp_path / "r.rrd"]) == {}
