@@ -19,12 +19,12 @@ from pipeline.run.stages import process_chunk
 from pipeline.run.stamp import stamp_for
 from tests.cluster.helpers import CODE
 
-RECORDINGS = 200
+RECORDINGS = 160
 DURATION_S = 3.0            # 60 control periods, two reversals at the guards: every stage has work, briefly
 WARM_UP = 8                 # recordings after which the worker's caches (layouts, figure backgrounds) are filled
 # What the worker may gain after its warm-up.  Flat, it stays within a few MB of memory and holds the
 # same threads and files; one stream left per recording would cost four threads (a stream and its
-# layout's, each with its batcher) and ~2 MB per recording: ~770 threads and ~400 MB here.
+# layout's, each with its batcher) and ~2 MB per recording: ~610 threads and ~300 MB here.
 MAX_EXTRA_THREADS = 2
 MAX_EXTRA_RSS_MB = 25
 MAX_EXTRA_FILES = 2
