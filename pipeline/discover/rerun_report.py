@@ -61,10 +61,8 @@ def log_discovery(rec, d: Discovery, report_md: str, guard: float, way: str = "r
 
 def write_rrd(target: Path, d: Discovery, report_md: str, way: str = "replay") -> None:
     """Saved atomically and checked with ``rerun rrd verify``."""
-    import rerun as rr
-
     from pipeline.validate.rerun_blueprint import axis_ranges, discovery_blueprint
-    from pipeline.validate.rerun_io import blueprint_chunks, save_with_blueprint, verify_rrd
+    from pipeline.validate.rerun_io import blueprint_chunks, verify_rrd, write_recording
     from pipeline.validate.rerun_log import residual_ranges, theta_band
 
     guard = d.meas.config.plant_spec().guard_rad
@@ -72,10 +70,7 @@ def write_rrd(target: Path, d: Discovery, report_md: str, way: str = "replay") -
     ranges = axis_ranges(discovery_blueprint, theta_band(d.meas.kinematics, sims, guard),
                          residual_ranges(d.meas.kinematics, sims.values()))
     with atomic_path(Path(target)) as tmp:
-        rec = rr.RecordingStream("pdr-discover", recording_id=f"discover-{d.meas.name}")
-        save_with_blueprint(rec, tmp, blueprint_chunks(discovery_blueprint), application_id="pdr-discover",
-                            y_ranges=ranges)
-        log_discovery(rec, d, report_md, guard, way)
-        rec.flush()
-        rec.disconnect()
+        write_recording(tmp, f"discover-{d.meas.name}", blueprint_chunks(discovery_blueprint),
+                        lambda rec: log_discovery(rec, d, report_md, guard, way), application_id="pdr-discover",
+                        y_ranges=ranges)
         verify_rrd(tmp)

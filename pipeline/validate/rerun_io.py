@@ -1,6 +1,8 @@
 """Saving ``.rrd`` files with a saved layout, and checking them with the ``rerun`` CLI.
 
-Shared by the run recording (``rerun_log``) and discovery's (``discover.rerun_report``).
+Shared by the run recording (``rerun_log``), discovery's (``discover.rerun_report``) and the
+side-by-side one (``view``).  Every stream pdr saves is ended when its file is written
+(``write_recording``): rerun's Python SDK never drops a stream by itself.
 """
 
 from __future__ import annotations
@@ -43,20 +45,75 @@ def blueprint_chunks(build: Callable, *args):
     blueprint on every call: a few dozen archetypes through rerun's Python
     converters, ~10 ms per ``.rrd``.  The few layouts recur in every run, so
     each is logged once into a file of its own and its chunks are read back;
-    each ``.rrd`` then gets a copy of them (~4 ms).  Not in the forkserver:
-    saving starts rerun's threads, and a process must not fork after that.
+    each ``.rrd`` then gets a copy of them (~4 ms).  Logged by a layout stream
+    of pdr's own, ended after: ``save(default_blueprint=...)`` would leave
+    rerun's in-memory one running.  Not in the forkserver: saving starts
+    rerun's threads, and a process must not fork after that.
     """
-    import rerun as rr
     from rerun.chunk import RrdReader
+
+    def log_layout(stream) -> None:
+        stream.save(path)
+        stream.set_time("blueprint", sequence=0)
+        build(*args).to_blueprint()._log_to_stream(stream)
 
     with tempfile.TemporaryDirectory(prefix="pdr-blueprint-") as folder:
         path = Path(folder) / "blueprint.rrd"
-        rec = rr.RecordingStream("pdr", recording_id="blueprint")
-        rec.save(path, default_blueprint=build(*args))
-        rec.flush()
-        rec.disconnect()
+        _with_stream(_layout_stream("pdr"), log_layout)
         reader = RrdReader(path)
         return reader.store(store=reader.blueprints()[0]).stream().collect()
+
+
+def write_recording(path: Path, recording_id: str, chunks, log: Callable, application_id: str = "pdr",
+                    y_ranges: dict[str, tuple[float, float]] | None = None) -> None:
+    """Save a new stream to ``path`` with the layout ``chunks`` (``save_with_blueprint``), ``log(stream)``
+    into it, and end the stream: the file is complete, and the stream's threads are gone.
+
+    The stream never leaves this call (``log`` must not keep it), so nothing holds it once it is
+    closed; ``end_streams`` then drops it.
+    """
+    import rerun as rr
+
+    def save_and_log(rec) -> None:
+        save_with_blueprint(rec, path, chunks, application_id, y_ranges)
+        log(rec)
+
+    _with_stream(rr.RecordingStream(application_id, recording_id=recording_id), save_and_log)
+
+
+def _with_stream(rec, use: Callable) -> None:
+    """``use(rec)``, then flush and close ``rec`` and drop it (``end_streams``), whatever happens
+    (after a failure the traceback may still hold it: the next ``end_streams`` drops it)."""
+    try:
+        use(rec)
+        rec.flush()
+    finally:
+        rec.disconnect()
+        del rec
+        end_streams()
+
+
+def end_streams() -> None:
+    """End every Rerun stream of this process that nothing references any more.
+
+    rerun-sdk's Python streams are owned by its Rust side (rerun-io/rerun#2116):
+    a stream Python lets go of is only disconnected, and keeps its
+    ``RecordingStream`` and ``ChunkBatcher`` threads and buffers for the life of
+    the process -- two threads per stream, four per ``.rrd`` with its layout
+    stream, thousands in a ``pdr run`` worker.  The binding ``rr.init`` calls to
+    destroy orphaned streams is the only one that ends them; it also flushes
+    the live ones and clears the global recording, which pdr never sets (it
+    logs to explicit streams only).  A live stream that cannot flush (``pdr
+    record``'s view of a viewer that cannot be reached) makes it raise before
+    it ends any: the file at hand was flushed and closed already, so that is
+    no failure of it, and the orphans are ended by the next call that succeeds.
+    """
+    import rerun_bindings as bindings
+
+    try:
+        bindings.flush_and_cleanup_orphaned_recordings()
+    except RuntimeError:
+        pass
 
 
 def save_with_blueprint(rec, path: Path, chunks, application_id: str = "pdr",
@@ -71,20 +128,31 @@ def save_with_blueprint(rec, path: Path, chunks, application_id: str = "pdr",
     """
     import rerun as rr
     import rerun_bindings as bindings
-    from rerun.recording_stream import RecordingStream
 
     _require_space(path)
-    stream = RecordingStream._from_native(bindings.new_blueprint(
-        application_id=application_id, make_default=False, make_thread_default=False, default_enabled=True))
-    rr.send_chunks(chunks, recording=stream)
-    if y_ranges:
-        import rerun.blueprint as rrb
 
-        stream.set_time("blueprint", sequence=0)
-        for view_id, y_range in y_ranges.items():
-            stream.log(f"view/{view_id}/ScalarAxis", rrb.archetypes.ScalarAxis(range=y_range))
-    bindings.save(path=str(path), default_blueprint=stream.memory_recording().storage,
-                  recording=rec.to_native(), write_footer=True)
+    def save(stream) -> None:
+        rr.send_chunks(chunks, recording=stream)
+        if y_ranges:
+            import rerun.blueprint as rrb
+
+            stream.set_time("blueprint", sequence=0)
+            for view_id, y_range in y_ranges.items():
+                stream.log(f"view/{view_id}/ScalarAxis", rrb.archetypes.ScalarAxis(range=y_range))
+        bindings.save(path=str(path), default_blueprint=stream.memory_recording().storage,
+                      recording=rec.to_native(), write_footer=True)
+
+    # the layout stream's memory sink and the stream hold each other: only closing it frees both
+    _with_stream(_layout_stream(application_id), save)
+
+
+def _layout_stream(application_id: str):
+    """A blueprint (layout) stream, neither global nor the thread's."""
+    import rerun_bindings as bindings
+    from rerun.recording_stream import RecordingStream
+
+    return RecordingStream._from_native(bindings.new_blueprint(
+        application_id=application_id, make_default=False, make_thread_default=False, default_enabled=True))
 
 
 # Free space a recording needs to start: Rerun's file sink blocks for good, instead of failing, when

@@ -35,7 +35,7 @@ from pipeline.validate.compare import logged_dir, switch_indices
 from pipeline.validate.palette import RGB
 from pipeline.validate.rerun_blueprint import RUN_VIEW_NAMES, axis_ranges, run_blueprint, tick_range
 from pipeline.validate.rerun_io import (blueprint_chunks, rerun_executable, save_with_blueprint,  # noqa: F401
-                                        verify_rrd, verify_rrds)
+                                        verify_rrd, verify_rrds, write_recording)
 from pipeline.validate.rerun_phase import log_phase_portrait
 
 TIMELINE = "time"
@@ -367,18 +367,13 @@ def _md_table(columns: dict[str, np.ndarray]) -> list[str]:
 def write_rrd(target: Path, name: str, kin: pd.DataFrame, sims: dict[str, SimResult], validation: dict,
               guard: float, derived: dict[str, dict[str, np.ndarray]] | None = None, verify: bool = True,
               period: float = 0.05) -> None:
-    """Save to a temporary file beside ``target``, close the stream, verify, rename."""
-    import rerun as rr
-
+    """Save to a temporary file beside ``target``, end the stream, verify, rename."""
     from pipeline.io.atomic import atomic_path
 
     ranges = axis_ranges(run_blueprint, theta_band(kin, sims, guard),
                          residual_ranges(kin, sims.values()))
     with atomic_path(Path(target)) as tmp:
-        rec = rr.RecordingStream("pdr", recording_id=name)
-        save_with_blueprint(rec, tmp, blueprint_chunks(run_blueprint), y_ranges=ranges)
-        log_run(rec, name, kin, sims, validation, guard, derived, period)
-        rec.flush()
-        rec.disconnect()
+        write_recording(tmp, name, blueprint_chunks(run_blueprint),
+                        lambda rec: log_run(rec, name, kin, sims, validation, guard, derived, period), y_ranges=ranges)
         if verify:
             verify_rrd(tmp)

@@ -53,7 +53,7 @@ def side_by_side_rrd(rrds: dict[str, Path], target: Path) -> Path:
 
     from pipeline.io.atomic import atomic_path
     from pipeline.validate.rerun_blueprint import side_by_side_blueprint
-    from pipeline.validate.rerun_io import blueprint_chunks, save_with_blueprint
+    from pipeline.validate.rerun_io import blueprint_chunks, write_recording
 
     moved, peak = [], 0.0
     for name, path in rrds.items():
@@ -68,11 +68,8 @@ def side_by_side_rrd(rrds: dict[str, Path], target: Path) -> Path:
     # one angle range for every column, the data of all with 3 % to spare (the legends have views of their own)
     layout = blueprint_chunks(side_by_side_blueprint, tuple(rrds), (round(-1.03 * peak, 3), round(1.03 * peak, 3)))
     with atomic_path(Path(target)) as tmp:
-        rec = rr.RecordingStream(SIDE_BY_SIDE_APP, recording_id="side-by-side:" + "+".join(rrds))
-        save_with_blueprint(rec, tmp, layout, application_id=SIDE_BY_SIDE_APP)
-        rr.send_chunks(moved, recording=rec)
-        rec.flush()
-        rec.disconnect()
+        write_recording(tmp, "side-by-side:" + "+".join(rrds), layout, lambda rec: rr.send_chunks(moved, recording=rec),
+                        application_id=SIDE_BY_SIDE_APP)
     return Path(target)
 
 
