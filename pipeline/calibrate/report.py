@@ -87,14 +87,14 @@ def calibration_blueprint(names: tuple[str, ...]):
 
 
 def write_rrd(target: Path, c: Calibration, measurements, report_md: str) -> None:
-    import rerun as rr
+    """Saved atomically through ``rerun_io.write_recording`` (the stream ends with the file)."""
+    from pipeline.validate.rerun_io import blueprint_chunks, verify_rrd, write_recording
 
+    layout = blueprint_chunks(calibration_blueprint, tuple(m.name for m in measurements))
     with atomic_path(target) as tmp:
-        rec = rr.RecordingStream("pdr-calibrate", recording_id="calibrate-" + "+".join(c.recordings))
-        rec.save(tmp, default_blueprint=calibration_blueprint(tuple(m.name for m in measurements)))
-        log_calibration(rec, c, measurements, report_md)
-        rec.flush()
-        rec.disconnect()
+        write_recording(tmp, "calibrate-" + "+".join(c.recordings), layout,
+                        lambda rec: log_calibration(rec, c, measurements, report_md), application_id="pdr-calibrate")
+        verify_rrd(tmp)
 
 
 def write_outputs(out_dir: Path, c: Calibration, measurements, *, rrd: bool = True) -> dict[str, Path]:
