@@ -237,7 +237,7 @@ def ingest_signals(data: bytes, cfg: RigConfig, source: str, stem: str, processe
     cap = read_capture(data, cfg, source, stem)
     out = [run_paths(processed, run.name) for run in cap.runs]
     with ThreadPoolExecutor(max_workers=1) as pool:
-        pending = [pool.submit(write_signals, paths, run.signals) for paths, run in zip(out, cap.runs)]
+        pending = [pool.submit(write_signals, paths, run.signals, cfg) for paths, run in zip(out, cap.runs)]
         report = capture_report(cap)
         for job in pending:
             job.result()

@@ -51,14 +51,14 @@ ROW_GROUP_ROWS = 1 << 17         # 131,072 rows (~3 MB) per row group: written o
 SINK_BUFFER_BYTES = 1 << 20      # the encoder's pages gathered into writes of 1 MB
 
 
-def signals_table(df: pd.DataFrame, where: str, check: bool = True) -> pa.Table:
+def signals_table(df: pd.DataFrame, where: str, cfg: RigConfig, check: bool = True) -> pa.Table:
     """The checked Arrow table with units in field metadata (schemas/signals.json); ``check=False``:
     only a column the schema does not define is refused here, the caller runs ``check_arrow``.
 
     As ``TableSchema.to_arrow``, but built from the columns' arrays (zero copy) instead of
     ``Table.from_pandas``, which costs ~35 ms per million rows for pandas metadata nobody reads.
     """
-    schema = load_schema("signals")
+    schema = load_schema("signals", cfg)       # the ADC's range is the rig's
     if not set(df.columns) <= {c.name for c in schema.columns}:
         schema.check(df, where)                 # names the column the schema does not define
     arrow = schema.arrow_schema(df.columns)
@@ -68,9 +68,9 @@ def signals_table(df: pd.DataFrame, where: str, check: bool = True) -> pa.Table:
     return table
 
 
-def mcap_channels(df: pd.DataFrame):
+def mcap_channels(df: pd.DataFrame, cfg: RigConfig):
     from pipeline.ingest.mcap_bulk import ChannelBatch
-    schema = load_schema("signals")
+    schema = load_schema("signals", cfg)
     out = []
     for topic, names in CHANNEL_GROUPS.items():
         present = [c for c in names if c in df.columns]
@@ -100,7 +100,7 @@ def mcap_metadata(cfg: RigConfig, report: dict) -> dict[str, dict[str, str]]:
     }
 
 
-def write_signals(paths: RunPaths, df: pd.DataFrame, row_group_rows: int = ROW_GROUP_ROWS) -> None:
+def write_signals(paths: RunPaths, df: pd.DataFrame, cfg: RigConfig, row_group_rows: int = ROW_GROUP_ROWS) -> None:
     """A run's signals.parquet, checked against the schema; the first ingest output of a run.
 
     The schema check runs in a helper thread while the row groups are encoded (~3 ms per million
@@ -113,9 +113,9 @@ def write_signals(paths: RunPaths, df: pd.DataFrame, row_group_rows: int = ROW_G
     """
     remove_stale_temporaries(paths.root)
     where = str(paths.signals)
-    table = signals_table(df, where, check=False)
+    table = signals_table(df, where, cfg, check=False)
     with ThreadPoolExecutor(max_workers=1) as helper, atomic_path(paths.signals) as tmp:
-        done = [helper.submit(load_schema("signals").check_arrow, table, where)]
+        done = [helper.submit(load_schema("signals", cfg).check_arrow, table, where)]
         fd = os.open(tmp, os.O_RDONLY | os.O_CLOEXEC)      # fdatasync through any descriptor syncs the file
         try:
             with pa.BufferedOutputStream(pa.OSFile(str(tmp), "wb"), SINK_BUFFER_BYTES) as sink, \
@@ -136,6 +136,6 @@ def write_run(paths: RunPaths, df: pd.DataFrame, report: dict, cfg: RigConfig) -
     """The ingest outputs of one run after its ``write_signals``; each file replaced in one rename, the report last."""
     from pipeline.ingest.mcap_bulk import write_mcap
     with atomic_path(paths.mcap) as tmp, open(tmp, "wb") as fh:
-        write_mcap(fh, mcap_channels(df), log_time_ns(column(df, "t_s")), mcap_metadata(cfg, report))
+        write_mcap(fh, mcap_channels(df, cfg), log_time_ns(column(df, "t_s")), mcap_metadata(cfg, report))
     write_json(paths.rig_config, {"config": cfg.to_dict(), "sources": cfg.sources})
     write_json(paths.ingest_report, report)

@@ -83,7 +83,7 @@ def test_mcap_round_trip_values_schemas_metadata(tmp_path):
         assert [t for t, _ in msgs] == expected_ns.tolist()
         for name in names:
             assert [m[name] for _, m in msgs] == df[name].tolist()
-        assert schemas[topic] == load_schema("signals").json_schema(list(names), title="pdr." + topic.strip("/"))
+        assert schemas[topic] == load_schema("signals", default_config()).json_schema(list(names), title="pdr." + topic.strip("/"))
         assert encodings[topic] == ("json", "jsonschema")
         for name in names:
             unit = load_schema("signals").column(name).unit
@@ -102,7 +102,7 @@ def test_mcap_many_chunks_read_back_in_order(tmp_path):
     df = runs[0].signals
     path = tmp_path / "small_chunks.mcap"
     with open(path, "wb") as fh:
-        write_mcap(fh, mcap_channels(df), log_time_ns(df["t_s"].to_numpy()), {}, chunk_bytes=4096)
+        write_mcap(fh, mcap_channels(df, default_config()), log_time_ns(df["t_s"].to_numpy()), {}, chunk_bytes=4096)
     messages, _, _, _, summary = _read_mcap(path)
     assert summary.statistics.chunk_count > 30
     assert [m["counts"] for _, m in messages["/encoder"]] == (t % 977 - 400).tolist()
@@ -125,13 +125,13 @@ def test_mcap_of_one_block_built_inline_is_the_threaded_writers_file(tmp_path, m
     for probe_rows in (mcap_bulk.PROBE_ROWS, 64):
         monkeypatch.setattr(mcap_bulk, "PROBE_ROWS", probe_rows)
         out = io.BytesIO()
-        write_mcap(out, mcap_channels(df), log_time_ns(df["t_s"].to_numpy()), {"m": {"k": "v"}})
+        write_mcap(out, mcap_channels(df, default_config()), log_time_ns(df["t_s"].to_numpy()), {"m": {"k": "v"}})
         files.append(out.getvalue())
     assert files[0] == files[1]
     path = tmp_path / "one_block.mcap"
     path.write_bytes(files[0])
     messages, _, _, _, summary = _read_mcap(path)
-    assert summary.statistics.chunk_count == len(messages) == len(mcap_channels(df))
+    assert summary.statistics.chunk_count == len(messages) == len(mcap_channels(df, default_config()))
     assert [m["counts"] for _, m in messages["/encoder"]] == (t % 977 - 400).tolist()
 
 
