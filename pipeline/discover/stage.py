@@ -21,6 +21,7 @@ from pipeline.discover.declared import check_declared
 from pipeline.discover.longer import refit_on_more_samples
 from pipeline.discover.selection import Selection, select
 from pipeline.model.effects import Effect
+from pipeline.model.params import PlantSpec
 from pipeline.model.simulate import SimResult
 from pipeline.runs import RunPaths, ingest_segment, load_config
 from pipeline.validate.metrics import mse_only, signal_errors
@@ -63,7 +64,13 @@ class Discovery:
         return bool(logs) and float(np.mean(logs)) < 0.0
 
 
-def _errors(kin: pd.DataFrame, sims: dict[str, SimResult]) -> dict[str, dict[str, float]]:
+def _errors(meas: Measurement, spec: PlantSpec, command: np.ndarray,
+            sims: dict[str, SimResult]) -> dict[str, dict[str, float]]:
+    """The errors of the model as fitted: after a reset, of the angle in the counter's frame, with the
+    counter's zero its start was estimated with (the simulation's angle is about the springs' rest)."""
+    kin, zero = meas.kinematics, meas.x0(spec, command).angle_offset
+    if zero:
+        kin = kin.assign(theta_rad=kin["theta_rad"] - zero)
     return {way: mse_only(signal_errors(kin, sims[way])) for way in WAYS}
 
 
@@ -83,7 +90,9 @@ def discover(kin: pd.DataFrame, config: RigConfig, name: str, after_reset: bool 
     sig_b = signatures(meas, base["replay"], sel.floor)
     sig_a = signatures(meas, final["replay"], sel.floor)
     return Discovery(meas=meas, selection=sel, base=base, final=final,
-                     mse_before=_errors(meas.kinematics, base), mse_after=_errors(meas.kinematics, final),
+                     mse_before=_errors(meas, meas.spec(), sel.command_before, base),
+                     mse_after=_errors(meas, meas.spec(sel.effects),
+                                      sel.command_after if sel.effects else sel.command_before, final),
                      localisation_before=describe(sig_b, sel.floor), localisation_after=describe(sig_a, sel.floor),
                      tables_before=binned(meas, base["replay"], sel.floor),
                      tables_after=binned(meas, final["replay"], sel.floor),
