@@ -247,10 +247,10 @@ def ingest_signals(data: bytes, cfg: RigConfig, source: str, stem: str, processe
 def ingest_recording(csv_path: Path, processed: Path, *, config: RigConfig | None = None) -> IngestResult:
     """Read one raw CSV (never modified), resolve its rig TOML layers, write one run per kept segment."""
     from pipeline.ingest.write import write_run
-    from pipeline.io.files import regular_file_problem
+    from pipeline.io.files import recording_file_problem
     csv_path = Path(csv_path)
     check_recording_name(csv_path.stem, csv_path)
-    problem = regular_file_problem(csv_path)        # never open a FIFO or a device: it may block or never end
+    problem = recording_file_problem(csv_path)      # never open a FIFO or a device, nor read 4 GiB of zeros
     if problem is not None:
         raise IngestError(problem, path=csv_path)
     cfg = config if config is not None else config_for_recording(csv_path)
