@@ -19,6 +19,7 @@ from pipeline.ingest.convert import ZeroEstimate, amps, estimate_zero, saturatio
 from pipeline.ingest.parse import ParsedFile, Quarantined, parse_capture
 from pipeline.ingest.plain import parse_plain, read_plain_signals
 from pipeline.ingest.segments import clean_segment, split_restarts
+from pipeline.ingest.timeline import segment_offsets
 from pipeline.ingest.timing import timing_stats
 from pipeline.runs import RunPaths, check_recording_name, run_paths, segment_run_name
 from pipeline.schemas import load_schema
@@ -151,6 +152,12 @@ def capture_report(cap: Capture) -> dict:
                   "adc_saturation": saturation(seg.values["adc"], cfg.current_sensor.adc_steps) if zero else None,
                   "not_logged": [c for c in ("counts", "adc", "dir") if c not in seg.layout]}
         seg_reports.append(entry)
+    kept = [entry for entry in seg_reports if entry["run"] is not None]
+    if len(kept) > 1:               # after a board reset: every segment's place on the capture's one time axis
+        offsets, how = segment_offsets([e["wall_clock_start"] for e in kept],
+                                       [e["timing"]["duration_s"] for e in kept], cfg.controller.period_s)
+        for entry, offset in zip(kept, offsets):
+            entry |= {"time_offset_s": offset, "time_axis": how}
     defects = list(parsed.notes)
     for entry in seg_reports:
         defects += [f"segment {entry['index']}: {n}" for n in entry["notes"]]

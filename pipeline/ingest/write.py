@@ -25,6 +25,7 @@ CHANNEL_GROUPS = {
     "/current": ("adc", "current_v", "current_a"),
     "/command": ("dir", "mode"),
 }
+GUARDS_TOPIC = "/guards"              # +/-controller.guard_rad at every encoder sample (schemas/guards.json)
 
 
 # Parquet encoding per column, chosen by measured cost (encode CPU + bytes written) per million rows;
@@ -79,11 +80,13 @@ def mcap_channels(df: pd.DataFrame, cfg: RigConfig):
         title = "pdr." + topic.strip("/")
         out.append(ChannelBatch(topic=topic, schema_name=title, json_schema=schema.json_schema(present, title=title),
                                 fields={c: column(df, c) for c in present}))
+    if "theta_rad" in df.columns:       # the guards as a channel Foxglove plots beside the angle, not only metadata
+        t, guard = column(df, "t_s"), float(cfg.controller.guard_rad)
+        out.append(ChannelBatch(topic=GUARDS_TOPIC, schema_name="pdr.guards",
+                                json_schema=load_schema("guards").json_schema(title="pdr.guards"),
+                                fields={"t_s": t, "lower_rad": np.full(len(t), -guard),
+                                        "upper_rad": np.full(len(t), guard)}))
     return out
-
-
-TIME_NOTE = ("log_time = t_s, seconds since the segment's first sample; the capture's wall-clock start is not "
-             "known (the rig's clock has no date)")
 
 
 def log_time_ns(t_s: np.ndarray) -> np.ndarray:
@@ -91,12 +94,12 @@ def log_time_ns(t_s: np.ndarray) -> np.ndarray:
     return np.round(np.asarray(t_s, dtype=np.float64) * 1e9).astype(np.uint64)
 
 
-def mcap_metadata(cfg: RigConfig, report: dict) -> dict[str, dict[str, str]]:
+def mcap_metadata(cfg: RigConfig, report: dict, time_record: dict[str, str]) -> dict[str, dict[str, str]]:
     return {
         "rig_config": {"config": json.dumps(cfg.to_dict(), sort_keys=True),
                        "sources": json.dumps(cfg.sources, sort_keys=True)},
         "recording": {"source": str(report["recording"]), "sha256": report["sha256"], "run": report["run"]},
-        "time": {"log_time": TIME_NOTE, "wall_clock": "unknown"},
+        "time": time_record,
     }
 
 
@@ -135,7 +138,11 @@ def write_signals(paths: RunPaths, df: pd.DataFrame, cfg: RigConfig, row_group_r
 def write_run(paths: RunPaths, df: pd.DataFrame, report: dict, cfg: RigConfig) -> None:
     """The ingest outputs of one run after its ``write_signals``; each file replaced in one rename, the report last."""
     from pipeline.ingest.mcap_bulk import write_mcap
+    from pipeline.ingest.timeline import log_time_origin
+    segment = next((s for s in report.get("segments", ()) if s.get("run") == report.get("run")), None)
+    origin, time_record = log_time_origin(segment)          # the capture's one time axis
     with atomic_path(paths.mcap) as tmp, open(tmp, "wb") as fh:
-        write_mcap(fh, mcap_channels(df, cfg), log_time_ns(column(df, "t_s")), mcap_metadata(cfg, report))
+        write_mcap(fh, mcap_channels(df, cfg), log_time_ns(column(df, "t_s")) + np.uint64(origin),
+                   mcap_metadata(cfg, report, time_record))
     write_json(paths.rig_config, {"config": cfg.to_dict(), "sources": cfg.sources})
     write_json(paths.ingest_report, report)
