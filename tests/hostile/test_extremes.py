@@ -109,3 +109,9 @@ def test_one_timestamp_glitch_does_not_allocate_for_the_time_span(workspace, gli
     assert validation["n_samples"] == len(rows(data)[1])
     report = json.loads((processed / "glitch" / "ingest_report.json").read_text())
     assert any("gaps longer than" in d for d in report["defects"])             # said, not hidden
+    # discovery fits the samples before the gap and says so (stepping its candidates over the gap took minutes)
+    found = subprocess.run([PDR, "discover", str(raw / "glitch.csv"), "--json", "--no-rrd", "--out",
+                            str(processed / "discovery")], capture_output=True, text=True, timeout=60)
+    no_traceback(found.stdout, found.stderr)
+    assert found.returncode == 0, found.stderr
+    assert "the 81 samples from t = " in json.loads(found.stdout)["left_out"]
