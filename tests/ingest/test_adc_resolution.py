@@ -15,6 +15,7 @@ from typer.testing import CliRunner
 from pipeline.cli import app
 from pipeline.config import default_config
 from pipeline.errors import SchemaError
+from pipeline.model.effects import make_effect
 from pipeline.rig.recording import RigSetup, make_recording, write_recording
 from pipeline.run import run_pipeline
 from pipeline.schemas import load_schema
@@ -39,7 +40,8 @@ def test_the_adc_range_comes_from_the_rigs_configuration():
 
 def test_a_12_bit_adc_rig_is_ingested_and_discovered_like_a_10_bit_one(tmp_path):
     raw, processed = tmp_path / "raw", tmp_path / "processed"
-    recs = {name: make_recording(RigSetup(config=cfg, duration_s=10.0), seed=4)
+    hidden = (make_effect("viscous_friction", {"b": 7.7e-4}),)
+    recs = {name: make_recording(RigSetup(config=cfg, effects=hidden, duration_s=10.0), seed=4)
             for name, cfg in (("ten", default_config()), ("twelve", _twelve_bit()))}
     for name, rec in recs.items():
         write_recording(rec, raw, name)
@@ -60,6 +62,9 @@ def test_a_12_bit_adc_rig_is_ingested_and_discovered_like_a_10_bit_one(tmp_path)
                                        "--out", str(tmp_path / "discovery" / name)])
         assert res.exit_code == 0, res.output
         fits[name] = json.loads(res.stdout)
-    assert fits["twelve"]["verdict"] == fits["ten"]["verdict"] == "none", fits["twelve"]["effects"]
+    found = {name: {e["name"]: e["parameters"] for e in fit["effects"]} for name, fit in fits.items()}
+    assert fits["twelve"]["verdict"] == fits["ten"]["verdict"] == "explained", found
+    assert found["twelve"]["viscous_friction"]["b"] == pytest.approx(7.7e-4, rel=0.05), found
+    assert set(found["twelve"]) == set(found["ten"]), found
     validation = {n: json.loads((processed / n / "validation.json").read_text()) for n in recs}
     assert validation["twelve"]["replay"]["signals"]["current"]["mse"] < 2 * validation["ten"]["replay"]["signals"]["current"]["mse"]
