@@ -63,11 +63,12 @@ def run_parquet(csv: Path, processed: Path) -> dict:
 def run_mcap(signals, out: Path) -> None:
     """The MCAP as ``write.write_run`` writes it (a temporary file, fsync, rename) into ``out``, a folder
     with no MCAP yet: replacing one would add the filesystem's cost of freeing 116 MB (~30 ms)."""
+    from pipeline.config import default_config
     from pipeline.ingest.mcap_bulk import write_mcap
     from pipeline.ingest.write import log_time_ns, mcap_channels
     from pipeline.io.atomic import atomic_path
     with atomic_path(out / "signals.mcap") as tmp, open(tmp, "wb") as fh:
-        write_mcap(fh, mcap_channels(signals), log_time_ns(signals["t_s"].to_numpy()), {})
+        write_mcap(fh, mcap_channels(signals, default_config()), log_time_ns(signals["t_s"].to_numpy()), {})
 
 
 def _timed(fn, *args) -> float:
@@ -125,15 +126,15 @@ def breakdown(k: int, csv: Path, out: Path) -> dict[str, float]:
     data = csv.read_bytes()
     cap = read_capture(data, cfg, str(csv), csv.stem)
     df = cap.runs[0].signals
-    table = signals_table(df, "bench")
+    table = signals_table(df, "bench", cfg)
     steps = {
         "read_plain_signals (signal_rows: two halves, two threads)":
             lambda j: read_plain_signals(data, cfg, str(csv)),
         "read_capture (parse, clean, derived columns)": lambda j: read_capture(data, cfg, str(csv), csv.stem),
-        "  schema check (check_arrow)": lambda j: signals_table(df, "bench"),
+        "  schema check (check_arrow)": lambda j: signals_table(df, "bench", cfg),
         "  Parquet encode, in memory": lambda j: pq.write_table(table, pa.BufferOutputStream(), **PARQUET_OPTIONS),
         "write_signals (check, encode, file, syncs, rename)": lambda j: write_signals(
-            run_paths(out / f"parts{j}", "r"), df),
+            run_paths(out / f"parts{j}", "r"), df, cfg),
         "capture_report (timing, sha256), beside the write": lambda j: capture_report(cap),
     }
     best = dict.fromkeys(steps, float("inf"))

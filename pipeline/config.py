@@ -9,12 +9,14 @@ remembers where it came from, for the ingest report.
 from __future__ import annotations
 
 import math
+import os
+import re
 import tomllib
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any, Callable
 
-from pipeline.errors import ConfigError
+from pipeline.errors import ConfigError, shown
 from pipeline.model.effects import Effect, PlantSpec, build_spec, make_effect
 from pipeline.model.params import ControllerParams, DriveParams, ModelParams
 
@@ -85,13 +87,13 @@ def _number(positive: bool = True, allow_zero: bool = False, lo: float | None = 
     def check(key: str, value: Any) -> Any:
         if isinstance(value, bool) or not isinstance(value, (int, float)) or (integer and not isinstance(value, int)):
             kind = "an integer" if integer else "a number"
-            raise ValueError(f"expected {kind}, got {value!r}")
-        if not math.isfinite(value):
-            raise ValueError(f"expected a finite number, got {value!r}")
+            raise ValueError(f"expected {kind}, got {shown(value)}")
+        if isinstance(value, float) and not math.isfinite(value):      # an int is finite (and may not fit a float)
+            raise ValueError(f"expected a finite number, got {shown(value)}")
         if positive and (value < 0 or (value == 0 and not allow_zero)):
-            raise ValueError(f"expected a {'non-negative' if allow_zero else 'positive'} number, got {value!r}")
+            raise ValueError(f"expected a {'non-negative' if allow_zero else 'positive'} number, got {shown(value)}")
         if lo is not None and value < lo or hi is not None and value > hi:
-            raise ValueError(f"expected a value in [{lo}, {hi}], got {value!r}")
+            raise ValueError(f"expected a value in [{lo}, {hi}], got {shown(value)}")
         return value if integer else float(value)
     return check
 
@@ -102,18 +104,18 @@ def _zero_v(key: str, value: Any) -> Any:
     try:
         return _number(lo=0.0, hi=50.0, allow_zero=True)(key, value)
     except ValueError:
-        raise ValueError(f"expected a voltage in volts or \"auto\", got {value!r}") from None
+        raise ValueError(f"expected a voltage in volts or \"auto\", got {shown(value)}") from None
 
 
 def _string(key: str, value: Any) -> str:
     if not isinstance(value, str):
-        raise ValueError(f"expected a column name (string, \"\" if not logged), got {value!r}")
+        raise ValueError(f"expected a column name (string, \"\" if not logged), got {shown(value)}")
     return value
 
 
 def _time_unit(key: str, value: Any) -> str:
     if value not in ("ms", "us", "s"):
-        raise ValueError(f"expected \"ms\", \"us\" or \"s\", got {value!r}")
+        raise ValueError(f"expected \"ms\", \"us\" or \"s\", got {shown(value)}")
     return value
 
 
@@ -208,7 +210,25 @@ def default_config() -> RigConfig:
     return replace(cfg, sources=sources)
 
 
+MAX_TOML_BYTES = 1 << 20    # a rig file is a few hundred bytes; a bigger one is not a rig file
+
+
+def check_toml_file(path: Path) -> None:
+    """Refuse, by ``stat`` alone, a TOML path that is not a regular file of rig-file size."""
+    from pipeline.io.files import regular_file_problem
+
+    problem = regular_file_problem(path)
+    if problem is not None:
+        raise ConfigError(problem.replace("CSV", "TOML"), path=path)
+    size = os.path.getsize(path)
+    if size > MAX_TOML_BYTES:
+        raise ConfigError(f"{size} bytes, expected a rig TOML of at most {MAX_TOML_BYTES} bytes", path=path)
+
+
 def read_toml(path: Path) -> dict[str, Any]:
+    """A rig TOML's tables, refused by kind and size before it is opened (a FIFO would block the read,
+    ``/dev/zero`` never end) and by key when its values are not what a rig file holds."""
+    check_toml_file(path)
     try:
         text = path.read_bytes().decode("utf-8")
     except UnicodeDecodeError as err:
@@ -222,6 +242,42 @@ def read_toml(path: Path) -> dict[str, Any]:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
         raise ConfigError(f"expected valid TOML: {err}", path=path) from None
+    except ValueError as err:       # an integer of more than 4300 digits (Python's limit on converting one)
+        line, key = _where(text, lambda part, depth: LONG_DIGITS.search(part) is not None)
+        raise ConfigError(f"expected a number a rig file can hold: {err}".split("; use")[0],
+                          path=path, line=line, key=key) from None
+    except RecursionError:
+        line, key = _where(text, lambda part, depth: depth > MAX_NESTING)
+        raise ConfigError(f"arrays or inline tables nested deeper than the TOML reader can follow (more than "
+                          f"{MAX_NESTING} levels here); expected a number or a string",
+                          path=path, line=line, key=key) from None
+
+
+MAX_NESTING = 100          # where the message looks: a rig file nests nothing, Python's reader stops near 300
+LONG_DIGITS = re.compile(r"[0-9_]{4300,}")
+
+
+def _where(text: str, bad: Callable[[str, int], bool]) -> tuple[int | None, str | None]:
+    """The line and key (``section.key``) of the first value the TOML reader gave up on: the first line
+    for which ``bad(text so far on the line, bracket depth)`` holds.  Brackets are counted roughly
+    (strings included): only to name where the reader gave up."""
+    section, depth, where = "", 0, None
+    for number, line in enumerate(text.splitlines(), start=1):
+        stripped = line.strip()
+        if depth == 0 and stripped.startswith("[") and "=" not in stripped:
+            section = stripped.strip("[] ")
+            continue
+        if depth == 0 and "=" in stripped:
+            key = stripped.split("=", 1)[0].strip()
+            where = f"{section}.{key}" if section else key
+        for ch in stripped:
+            depth += ch in "[{"
+            depth -= ch in "]}"
+            if depth > MAX_NESTING and bad("", depth):
+                return number, where
+        if bad(stripped, depth):
+            return number, where
+    return None, None
 
 
 def resolve_config(layers: list[Path], base: RigConfig | None = None) -> RigConfig:
@@ -234,16 +290,10 @@ def resolve_config(layers: list[Path], base: RigConfig | None = None) -> RigConf
 
 def config_layers_for(csv_path: Path) -> list[Path]:
     """The TOML files that apply to a recording: raw/rig.toml, then raw/<name>.toml, when present."""
-    import os
-
-    from pipeline.io.files import regular_file_problem
-
     folder = csv_path.parent
     layers = [p for p in (folder / "rig.toml", csv_path.with_suffix(".toml")) if os.path.lexists(p)]
     for path in layers:         # a FIFO would block the read, a directory or dead link would be skipped unseen
-        problem = regular_file_problem(path)
-        if problem is not None:
-            raise ConfigError(problem.replace("CSV", "TOML"), path=path)
+        check_toml_file(path)
     return layers
 
 

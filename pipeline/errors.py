@@ -27,7 +27,8 @@ class PdrError(Exception):
         if key:
             where.append(f"key '{key}'")
         self.detail = message
-        super().__init__((", ".join(where) + ": " if where else "") + message)
+        from pipeline.names import printable        # a name's escape codes or newline never reach the terminal
+        super().__init__(printable((", ".join(where) + ": " if where else "") + message))
 
 
 class ConfigError(PdrError):
@@ -53,11 +54,15 @@ def describe_failure(err: BaseException, folder: str | Path | None = None) -> st
     folder being written has less than ``LOW_SPACE_BYTES`` free, that is what the
     line says, naming the folder.
     """
+    from pipeline.names import printable
+
+    return str(err) if isinstance(err, PdrError) else printable(_described(err, folder))
+
+
+def _described(err: BaseException, folder: str | Path | None) -> str:
     import errno
     import shutil
 
-    if isinstance(err, PdrError):
-        return str(err)
     if isinstance(err, OSError) and err.errno in (errno.ENOSPC, errno.EDQUOT):
         return f"no space left on the device writing {err.filename or folder}"
     if folder is not None:
@@ -88,3 +93,18 @@ def for_each(items, work, folder: str | Path | None = None) -> int:
             failures += 1
             print(f"pdr: error: {describe_failure(err, folder)}", file=sys.stderr)
     return failures
+
+
+def shown(value: object, limit: int = 60) -> str:
+    """A config value as a message shows it: short, one line, and without converting what cannot be
+    (a 400-digit integer is too large for a float, an array nested thousands deep for ``repr``)."""
+    if isinstance(value, bool):
+        return repr(value)
+    if isinstance(value, int) and abs(value) >= 10 ** 18:
+        return f"an integer of {len(str(abs(value)))} digits"        # the TOML reader holds at most 4300
+    if isinstance(value, list):
+        return "an array"
+    if isinstance(value, dict):
+        return "a table"
+    text = repr(value)
+    return text if len(text) <= limit else text[:limit] + "..."

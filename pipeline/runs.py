@@ -4,12 +4,10 @@ A run is one logging segment of one raw recording.  A file with a single
 segment gives the run ``<stem>``; a file in which the board reset gives
 ``<stem>-seg1``, ``<stem>-seg2``, ... (see the ingest report).
 
-Run names are unique by construction: a recording whose stem could be taken
-for a segment (``foo-seg1.csv``) or for one of the pipeline's own entries in
-``processed/`` (``discovery``, ``summary.csv``, ``dataset``, hidden names such as the lock)
-is refused by ``check_recording_name``, as is one whose run folder's files
-could not be named on a common file system.  Two recordings whose stems differ
-only in case are told apart by the raw-folder scan (``pipeline.run.recordings``).
+Run names are unique by construction: what a recording may be called is
+``pipeline.names`` (the one naming rule); two recordings whose stems differ
+only in case or Unicode normalisation are told apart by the raw-folder scan
+(``pipeline.run.recordings``).
 """
 
 from __future__ import annotations
@@ -22,6 +20,8 @@ from typing import TYPE_CHECKING
 
 from pipeline.config import RigConfig, config_from_dict
 from pipeline.errors import PdrError
+from pipeline.names import (DATASET_DIR, DISCOVERY_DIR, MAX_STEM_BYTES, RESERVED_NAMES, SEGMENT_SUFFIX,  # noqa: F401
+                            SUMMARY_CSV, check_recording_name, printable)
 
 _NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")
 
@@ -35,14 +35,6 @@ def check_name(name: str) -> str:
 
 
 LOCK_NAME = ".pdr.lock"                 # processed/.pdr.lock: the lock every writing command holds
-DISCOVERY_DIR = "discovery"             # processed/discovery/<run>/: pdr discover's default output
-SUMMARY_CSV = "summary.csv"             # processed/summary.csv: one row per run
-DATASET_DIR = "dataset"                 # processed/dataset/<table>/run=<run>/: every run as one dataset
-RESERVED_NAMES = (DISCOVERY_DIR, SUMMARY_CSV, DATASET_DIR)
-SEGMENT_SUFFIX = re.compile(r"-seg[0-9]+$")
-# A run's longest file name is ".<run>.mcap.<pid>.<n>.tmp" (an atomic write's temporary): with up to
-# 40 bytes for the rest and "-segNNNN", a stem of 200 bytes stays within the usual 255-byte limit.
-MAX_STEM_BYTES = 200
 
 
 def segment_run_name(stem: str, k: int) -> str:
@@ -50,34 +42,9 @@ def segment_run_name(stem: str, k: int) -> str:
     return f"{stem}-seg{k}"
 
 
-def check_recording_name(stem: str, path: str | Path) -> None:
-    """Refuse, naming the file, a recording stem that is not a usable, unique run name."""
-    from pipeline.errors import PdrError
-
-    try:
-        size = len(stem.encode("utf-8"))
-    except UnicodeEncodeError:
-        raise PdrError("the file name is not valid UTF-8; rename it (run names are UTF-8 folder names)",
-                       path=printable(path)) from None
-    if size > MAX_STEM_BYTES:
-        raise PdrError(f"the file name is {size} bytes long, expected at most {MAX_STEM_BYTES} before '.csv' "
-                       f"(its outputs' names must fit the file system); rename it", path=path)
-    if not stem or stem.startswith(".") or stem.casefold() in RESERVED_NAMES:
-        raise PdrError(f"'{stem}' is reserved for pdr's own entries in processed/ ({', '.join(RESERVED_NAMES)}, "
-                       f"hidden names); rename the recording", path=path)
-    if SEGMENT_SUFFIX.search(stem):
-        raise PdrError("names ending in -seg<N> are reserved for the segments of a recording whose board "
-                       "reset; rename the recording", path=path)
-
-
 def glob_escape(text: str) -> str:
     """``text`` matched literally by ``Path.glob`` (a recording may be named ``run[1].csv``)."""
     return "".join(f"[{c}]" if c in "*?[" else c for c in text)
-
-
-def printable(path: str | Path) -> str:
-    """A path (or a message naming one) whose name is not valid UTF-8, with the bad bytes escaped (``\\xff``)."""
-    return str(path).encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
 
 
 @dataclass(frozen=True)

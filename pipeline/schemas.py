@@ -6,12 +6,17 @@ together (``together``: e.g. counts and theta_rad) or of which at least one is
 present (``any_of``: a recording measures the angle, the current or both).  From that one definition come the Parquet
 schema (units in field metadata), the JSON schema of the MCAP channels, and the
 checks run before anything is written.
+
+A range that depends on the rig (the ADC's top step, the reference voltage) is written in the
+JSON as ``{"rig": "section.key", "plus": k}``: ``load_schema(name)`` leaves it unchecked and
+``load_schema(name, cfg)`` fills it from that rig's configuration, so a 12-bit ADC's recording
+is held to 0..4095 and a 10-bit one's to 0..1023 by the same definition.
 """
 
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 from pathlib import Path
 from typing import Any
@@ -43,6 +48,15 @@ class Column:
     min: float | None = None
     max: float | None = None
     allowed: tuple | None = None
+    rig_min: tuple[str, float] | None = None    # ("section.key", plus): min = rig value + plus
+    rig_max: tuple[str, float] | None = None
+
+    def for_rig(self, values: dict[str, float]) -> Column:
+        """This column with its rig-dependent range filled from the rig's ``values`` ("section.key" -> value)."""
+        if self.rig_min is None and self.rig_max is None:
+            return self
+        return replace(self, min=_bound(values, self.rig_min, self.min), max=_bound(values, self.rig_max, self.max),
+                       rig_min=None, rig_max=None)
 
     @property
     def arrow_type(self) -> pa.DataType:
@@ -212,13 +226,48 @@ def _rows(mask: np.ndarray, limit: int = 5) -> str:
     return shown + (f" (+{len(idx) - limit} more)" if len(idx) > limit else "")
 
 
+def _bound(values: dict[str, float], ref: tuple[str, float] | None, fixed: float | None) -> float | None:
+    return fixed if ref is None else values[ref[0]] + ref[1]
+
+
+def _column(spec: dict[str, Any]) -> Column:
+    """One column of a schema file; a bound given as ``{"rig": "section.key", "plus": k}`` depends on the rig."""
+    spec = {**spec, "allowed": tuple(spec["allowed"]) if "allowed" in spec else None}
+    for bound in ("min", "max"):
+        if isinstance(spec.get(bound), dict):
+            ref = spec.pop(bound)
+            spec[f"rig_{bound}"] = (ref["rig"], ref.get("plus", 0))
+    return Column(**spec)
+
+
+def rig_keys(schema: TableSchema) -> tuple[str, ...]:
+    """The rig configuration keys ("section.key") the schema's ranges depend on."""
+    return tuple(sorted({ref[0] for c in schema.columns for ref in (c.rig_min, c.rig_max) if ref is not None}))
+
+
+def load_schema(name: str, cfg: Any = None) -> TableSchema:
+    """A table's schema; with ``cfg`` (a RigConfig) its rig-dependent ranges are that rig's, without
+    it they are left unchecked (enough for names, types and units)."""
+    schema = _load_schema(name)
+    keys = rig_keys(schema)
+    if cfg is None or not keys:
+        return schema
+    values = tuple((key, getattr(getattr(cfg, key.split(".")[0]), key.split(".")[1])) for key in keys)
+    return _for_rig(name, values)
+
+
+@lru_cache(maxsize=32)
+def _for_rig(name: str, values: tuple[tuple[str, float], ...]) -> TableSchema:
+    schema, resolved = _load_schema(name), dict(values)
+    return replace(schema, columns=tuple(c.for_rig(resolved) for c in schema.columns))
+
+
 @lru_cache(maxsize=None)
-def load_schema(name: str) -> TableSchema:
+def _load_schema(name: str) -> TableSchema:
     path = SCHEMA_DIR / f"{name}.json"
     data = json.loads(path.read_text(encoding="utf-8"))
-    cols = tuple(Column(**{**c, "allowed": tuple(c["allowed"]) if "allowed" in c else None})
-                 for c in data["columns"])
-    return TableSchema(name=data["name"], description=data.get("description", ""), columns=cols,
+    return TableSchema(name=data["name"], description=data.get("description", ""),
+                       columns=tuple(_column(c) for c in data["columns"]),
                        together=tuple(tuple(g) for g in data.get("together", ())),
                        any_of=tuple(tuple(g) for g in data.get("any_of", ())))
 

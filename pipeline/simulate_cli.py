@@ -7,12 +7,15 @@ never the other way round.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
 
 from pipeline.errors import PdrError
+
+MAX_SAMPLES = 5_000_000     # 69 h at the paper's 50 ms; the result's arrays ~0.5 GB
 
 
 def simulate(
@@ -33,11 +36,16 @@ def simulate(
 
     from pipeline.config import default_config, resolve_config
 
-    if not duration > 0.0:
-        raise PdrError(f"expected a positive duration in seconds, got {duration!r}", key="--duration")
+    if not (duration > 0.0 and math.isfinite(duration)):
+        raise PdrError(f"expected a positive, finite duration in seconds, got {duration!r}", key="--duration")
     if guard not in ("sampled", "continuous"):
         raise PdrError(f"expected 'sampled' or 'continuous', got {guard!r}", key="--guard")
     cfg = resolve_config([config]) if config is not None else default_config()
+    samples = duration / cfg.controller.period_s
+    if samples > MAX_SAMPLES:       # refused before anything is allocated: each sample costs ~100 bytes
+        raise PdrError(f"{duration:g} s at controller.period_s = {cfg.controller.period_s:g} s is {samples:.3g} "
+                       f"samples; expected at most {MAX_SAMPLES:,} (a shorter --duration or a longer period)",
+                       key="--duration")
     report = simulation_report(cfg, duration, guard)
     if json_out:
         typer.echo(json.dumps(report, indent=2, sort_keys=True))

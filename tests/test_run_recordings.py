@@ -19,7 +19,8 @@ def test_scan_sorts_entries_into_recordings_refusals_and_other_files(tmp_path):
     (tmp_path / "ok_link.csv").symlink_to(tmp_path / "b.csv")
     folder = scan_raw(tmp_path)
     assert [p.name for p in folder.recordings] == ["A.csv", "X.CSV", "b.csv", "ok_link.csv"]
-    assert folder.refused == {"a.csv": "its run name collides with A.csv (names differ only in case); rename one",
+    assert folder.refused == {"a.csv": "its run name collides with A.csv (the names differ only in case or Unicode "
+                                       "normalisation, and look alike); rename one",
                               "dead.csv": "a symlink whose target is missing",
                               "folder.csv": "a directory, expected a regular CSV file",
                               "pipe.csv": "a FIFO (named pipe), expected a regular CSV file"}

@@ -7,6 +7,7 @@ import pandas as pd
 import pyarrow.parquet as pq
 import pytest
 
+from pipeline.config import default_config
 from pipeline.errors import SchemaError
 from pipeline.schemas import load_schema, schema_names
 
@@ -59,7 +60,7 @@ def test_json_schema_lists_only_present_columns_with_units():
 ])
 def test_violations_name_column_rows_and_rule(mutate, message):
     with pytest.raises(SchemaError, match=message):
-        load_schema("signals").check(mutate(signals_frame()), "run1")
+        load_schema("signals", default_config()).check(mutate(signals_frame()), "run1")
 
 
 

@@ -54,7 +54,7 @@ def headline(summary: dict) -> str:
     period = summary["cycles"]["period_s"]
     if period["n"]:
         parts.append(f"period {period['mean']:.3f} s")
-    if summary["energy"]:
+    if summary["energy"] and summary["energy"]["energy_paper_j"] is not None:
         parts.append(f"paper energy {summary['energy']['energy_paper_j']:.3f} J")
     parts += [f"{k} not computed" for k in summary["not_computed"]]
     parts += summary["overshoot"]["flags"]

@@ -149,6 +149,9 @@ def derive_tables(signals: pd.DataFrame, cfg: RigConfig) -> DerivedTables:
             energy = run_energy(t, smooth, omega, theta, dirs, spec)
             k0 = motor_on_start(dirs)
             energy["energy_paper_logged_current_j"] = paper_energy_j(current[k0:], spec.v_rms, spec.period_s)
+            if k0 >= len(t) - 1:        # the paper's window is the motor-on run: none, or one sample
+                not_computed["energy_paper"] = ("the motor is never logged on: the paper's estimate covers "
+                                                "the motor-on window (the physical balance is computed)")
             bounds = phase_bounds(dirs)
             uncertainty = energy_uncertainty(t, smooth, omega, dirs, spec, current_stats["noise_a"],
                                              lambda g: smooth_by_phase(t, g, bounds, CURRENT_WINDOW, CURRENT_ORDER))

@@ -178,5 +178,7 @@ def _summary(doc: dict) -> str:
         lines.append(f"  near tie: {t['chosen']} vs {t['runner_up']} ({t['scores']})")
     for x in doc.get("unexplained", []):
         lines.append(f"  unexplained: {x}")
+    if doc.get("left_out"):
+        lines.append(f"  left out: {doc['left_out']}")
     lines.append(f"  {doc['seconds']:.2f} s")
     return "\n".join(lines)

@@ -25,6 +25,7 @@ import pandas as pd
 from pipeline.cluster.work import RecordingJob, ingest_bytes, scratch_root
 from pipeline.errors import PdrError
 from pipeline.io.atomic import write_bytes, write_text
+from pipeline.io.files import recording_file_problem
 
 SUMMARY_NAME = "summary.csv"
 POOLED_NAME = "pooled.csv"
@@ -81,6 +82,8 @@ def _jobs(recordings: list[Path]) -> tuple[list[tuple[RecordingJob, float]], lis
         try:
             if csv.suffix.lower() != ".csv" or not csv.is_file():
                 raise PdrError("expected a raw .csv recording (several recordings: raw files only)", path=csv)
+            if (problem := recording_file_problem(csv)) is not None:      # before reading it whole
+                raise PdrError(problem, path=csv)
             if csv.stem in seen:
                 raise PdrError(f"has the name of {seen[csv.stem]}, also given: runs are named after the file, "
                                "so one of them would overwrite the other's outputs", path=csv)

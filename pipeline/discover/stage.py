@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
+from pipeline.columns import column
 from pipeline.config import RigConfig, effects_toml_snippet
 from pipeline.discover.measurement import Measurement, measurement_from_kinematics
 from pipeline.discover.residuals import binned, describe, signatures
@@ -23,7 +24,8 @@ from pipeline.discover.declared import check_declared
 from pipeline.discover.longer import refit_on_more_samples
 from pipeline.discover.selection import Selection, select
 from pipeline.model.effects import Effect
-from pipeline.model.simulate import SimResult
+from pipeline.model.params import PlantSpec
+from pipeline.model.simulate import MAX_LOST_ROWS, SimResult
 from pipeline.runs import RunPaths, config_sources, ingest_segment, load_config
 from pipeline.validate.metrics import mse_only, signal_errors
 from pipeline.validate.stage import finite_or_none, load_kinematics
@@ -78,7 +80,13 @@ class Discovery:
         return bool(logs) and float(np.mean(logs)) < 0.0
 
 
-def _errors(kin: pd.DataFrame, sims: dict[str, SimResult]) -> dict[str, dict[str, float]]:
+def _errors(meas: Measurement, spec: PlantSpec, command: np.ndarray,
+            sims: dict[str, SimResult]) -> dict[str, dict[str, float]]:
+    """The errors of the model as fitted: after a reset, of the angle in the counter's frame, with the
+    counter's zero its start was estimated with (the simulation's angle is about the springs' rest)."""
+    kin, zero = meas.kinematics, meas.x0(spec, command).angle_offset
+    if zero:
+        kin = kin.assign(theta_rad=kin["theta_rad"] - zero)
     return {way: mse_only(signal_errors(kin, sims[way])) for way in WAYS}
 
 
@@ -104,7 +112,9 @@ def discover(kin: pd.DataFrame, config: RigConfig, name: str, after_reset: bool 
     sig_b = signatures(meas, base["replay"], sel.floor)
     sig_a = signatures(meas, final["replay"], sel.floor)
     return Discovery(meas=meas, selection=sel, base=base, final=final,
-                     mse_before=_errors(meas.kinematics, base), mse_after=_errors(meas.kinematics, final),
+                     mse_before=_errors(meas, meas.spec(), sel.command_before, base),
+                     mse_after=_errors(meas, meas.spec(sel.effects),
+                                      sel.command_after if sel.effects else sel.command_before, final),
                      localisation_before=describe(sig_b, sel.floor), localisation_after=describe(sig_a, sel.floor),
                      tables_before=binned(meas, base["replay"], sel.floor),
                      tables_after=binned(meas, final["replay"], sel.floor),
@@ -251,8 +261,26 @@ def segment_to_discover(runs: list[RunPaths]) -> RunPaths:
 
 def discover_run(paths: RunPaths, recording: str | None = None) -> tuple[Discovery, dict]:
     """Discovery on one processed (ingested and derived) run."""
-    kin = load_kinematics(paths)
+    config = load_config(paths)
+    kin, left_out = before_a_gap(load_kinematics(paths), config.controller.period_s)
     segment = ingest_segment(paths)
-    d = discover(kin, load_config(paths), paths.name, after_reset=after_board_reset(segment),
+    d = discover(kin, config, paths.name, after_reset=after_board_reset(segment),
                  zero_samples=zero_samples(segment), model_declared=declared_model(config_sources(paths)))
-    return d, discovery_json(d, recording if recording is not None else str(paths.root))
+    doc = discovery_json(d, recording if recording is not None else str(paths.root))
+    if left_out:
+        doc["left_out"] = left_out
+    return d, doc
+
+
+def before_a_gap(kin: pd.DataFrame, period_s: float) -> tuple[pd.DataFrame, str | None]:
+    """The samples before the first gap of more than ``MAX_LOST_ROWS`` periods (a paused capture, a
+    timestamp glitch), and what was left out: across a gap the rig's state is unknown (the sketch went
+    on deciding), and stepping each candidate's non-smooth plant over days of it took minutes."""
+    t = column(kin, "t_s", dtype=float)
+    gaps = np.flatnonzero(np.diff(t) > MAX_LOST_ROWS * period_s)
+    if not len(gaps):
+        return kin, None
+    k = int(gaps[0]) + 1
+    return kin.iloc[:k].reset_index(drop=True), (
+        f"the {len(t) - k} samples from t = {t[k]:.6g} s on, after a gap of {t[k] - t[k - 1]:.6g} s with no "
+        f"sample (more than {MAX_LOST_ROWS} sample periods: not rows lost over serial)")

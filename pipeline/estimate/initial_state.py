@@ -401,7 +401,8 @@ class StartEstimator:
         sigma = np.sqrt(np.clip(np.diag(cov_x), 0.0, None))
         return Start(x0=tuple(float(v) for v in x0), sigma=tuple(float(v) for v in sigma),
                      lead_s=tuple(float(v) for v in p.lead), commands=tuple(int(c) for c in commands),
-                     z=tuple(float(v) for v in a[:3] * STATE_SCALES), current_offset=p.I0)
+                     z=tuple(float(v) for v in a[:3] * STATE_SCALES), current_offset=p.I0,
+                     angle_offset=p.offset)
 
 
 def without_offset(spec: PlantSpec) -> PlantSpec:

@@ -24,6 +24,7 @@ class Start:
     commands: tuple[int, ...] = ()          # those commands: the one in force at t0, then those in flight
     z: tuple[float, float, float] | None = None   # state at the first lead instant (x0 without a lead)
     current_offset: float = 0.0             # A: the current sensor's offset the start was estimated under
+    angle_offset: float = 0.0               # rad: the counter's zero off the springs' rest it was estimated with
 
     @classmethod
     def given(cls, x0: tuple[float, float, float]) -> "Start":

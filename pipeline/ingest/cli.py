@@ -20,11 +20,17 @@ def ingest(
 
     Example: pdr ingest raw/run1.csv raw/run2.csv --processed processed
     """
-    from pipeline.errors import for_each
+    from pipeline.errors import IngestError, for_each
     from pipeline.ingest.stage import ingest_recording, summary_text
+    from pipeline.names import later_twins
     from pipeline.run.lock import processed_lock
 
+    twins = later_twins(recordings)
+
     def one(csv_path: Path) -> None:
+        if csv_path in twins:       # one run folder per name: the later one would overwrite the earlier
+            raise IngestError(f"its run name is that of {twins[csv_path]}, given before it (both would be "
+                              f"written to {processed / twins[csv_path].stem}); rename one", path=csv_path)
         result = ingest_recording(csv_path, processed)
         if not quiet:
             typer.echo(summary_text(result.report))

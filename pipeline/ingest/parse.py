@@ -23,6 +23,7 @@ from pipeline.ingest.prefix import BY_NAME, PrefixInfo, strip_prefixes
 
 BOM = b"\xef\xbb\xbf"
 TRIM = " \t\r\n"
+LONE_CR = re.compile(rb"\r(?!\n)")
 IDE_PREFIX = BY_NAME["arduino-ide"].pattern        # the Arduino IDE monitor's stamp; every terminal's: prefix.py
 INT_RE = r"-?[0-9]{1,18}"
 TIME_RE = r"-?[0-9]{1,15}(\.[0-9]{1,9})?"
@@ -91,6 +92,10 @@ def split_lines(data: bytes, source: str) -> tuple[pa.Array, list[Quarantined], 
     sep = b"\n" if b"\n" in data or b"\r" not in data else b"\r"
     if sep == b"\r":
         notes.append("CR-only line endings")
+    elif b"\r" in data and LONE_CR.search(data):
+        # a capture appended to by tools of different systems: a lone CR ends a line as LF and CRLF do
+        data = LONE_CR.sub(b"\n", data)
+        notes.append("mixed line endings (a lone CR read as a line ending)")
     if not data.endswith((b"\n", b"\r")):
         notes.append("last line has no line ending (capture stopped mid-line, or the writer left it out)")
     bad: list[Quarantined] = []

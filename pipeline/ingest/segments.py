@@ -37,6 +37,10 @@ def _order_time(seg: Segment, cfg: RigConfig) -> tuple[np.ndarray, int, int | No
     t_raw = seg.values["t_raw"]
     if not (t_raw[1:] < t_raw[:-1]).any():                  # the common case: nothing to undo
         return seg.values["t_raw"], 0, None
+    # a lone row out of line before any wrap is undone: one timestamp near 2**32 between ordinary ones is a
+    # glitch, not two wraps 49 days apart (a real wrap's neighbours are near 2**32 too)
+    spike = lone_out_of_order(t_raw)
+    _quarantine(seg, spike, lambda i: "time out of order (a lone sample between its neighbours' times)")
     t, wraps = unwrap(seg.values["t_raw"], cfg.columns.time_unit)
     lone = lone_out_of_order(t)
     _quarantine(seg, lone, lambda i: "time out of order (a lone sample between its neighbours' times)")

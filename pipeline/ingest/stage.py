@@ -19,6 +19,7 @@ from pipeline.ingest.convert import ZeroEstimate, amps, estimate_zero, saturatio
 from pipeline.ingest.parse import ParsedFile, Quarantined, parse_capture
 from pipeline.ingest.plain import parse_plain, read_plain_signals
 from pipeline.ingest.segments import clean_segment, split_restarts
+from pipeline.ingest.timeline import segment_offsets
 from pipeline.ingest.timing import timing_stats
 from pipeline.runs import RunPaths, check_recording_name, run_paths, segment_run_name
 from pipeline.schemas import load_schema
@@ -151,6 +152,12 @@ def capture_report(cap: Capture) -> dict:
                   "adc_saturation": saturation(seg.values["adc"], cfg.current_sensor.adc_steps) if zero else None,
                   "not_logged": [c for c in ("counts", "adc", "dir") if c not in seg.layout]}
         seg_reports.append(entry)
+    kept = [entry for entry in seg_reports if entry["run"] is not None]
+    if len(kept) > 1:               # after a board reset: every segment's place on the capture's one time axis
+        offsets, how = segment_offsets([e["wall_clock_start"] for e in kept],
+                                       [e["timing"]["duration_s"] for e in kept], cfg.controller.period_s)
+        for entry, offset in zip(kept, offsets):
+            entry |= {"time_offset_s": offset, "time_axis": how}
     defects = list(parsed.notes)
     for entry in seg_reports:
         defects += [f"segment {entry['index']}: {n}" for n in entry["notes"]]
@@ -237,7 +244,7 @@ def ingest_signals(data: bytes, cfg: RigConfig, source: str, stem: str, processe
     cap = read_capture(data, cfg, source, stem)
     out = [run_paths(processed, run.name) for run in cap.runs]
     with ThreadPoolExecutor(max_workers=1) as pool:
-        pending = [pool.submit(write_signals, paths, run.signals) for paths, run in zip(out, cap.runs)]
+        pending = [pool.submit(write_signals, paths, run.signals, cfg) for paths, run in zip(out, cap.runs)]
         report = capture_report(cap)
         for job in pending:
             job.result()
@@ -247,10 +254,10 @@ def ingest_signals(data: bytes, cfg: RigConfig, source: str, stem: str, processe
 def ingest_recording(csv_path: Path, processed: Path, *, config: RigConfig | None = None) -> IngestResult:
     """Read one raw CSV (never modified), resolve its rig TOML layers, write one run per kept segment."""
     from pipeline.ingest.write import write_run
-    from pipeline.io.files import regular_file_problem
+    from pipeline.io.files import recording_file_problem
     csv_path = Path(csv_path)
     check_recording_name(csv_path.stem, csv_path)
-    problem = regular_file_problem(csv_path)        # never open a FIFO or a device: it may block or never end
+    problem = recording_file_problem(csv_path)      # never open a FIFO or a device, nor read 4 GiB of zeros
     if problem is not None:
         raise IngestError(problem, path=csv_path)
     cfg = config if config is not None else config_for_recording(csv_path)

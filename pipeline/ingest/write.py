@@ -25,6 +25,7 @@ CHANNEL_GROUPS = {
     "/current": ("adc", "current_v", "current_a"),
     "/command": ("dir", "mode"),
 }
+GUARDS_TOPIC = "/guards"              # +/-controller.guard_rad at every encoder sample (schemas/guards.json)
 
 
 # Parquet encoding per column, chosen by measured cost (encode CPU + bytes written) per million rows;
@@ -51,14 +52,14 @@ ROW_GROUP_ROWS = 1 << 17         # 131,072 rows (~3 MB) per row group: written o
 SINK_BUFFER_BYTES = 1 << 20      # the encoder's pages gathered into writes of 1 MB
 
 
-def signals_table(df: pd.DataFrame, where: str, check: bool = True) -> pa.Table:
+def signals_table(df: pd.DataFrame, where: str, cfg: RigConfig, check: bool = True) -> pa.Table:
     """The checked Arrow table with units in field metadata (schemas/signals.json); ``check=False``:
     only a column the schema does not define is refused here, the caller runs ``check_arrow``.
 
     As ``TableSchema.to_arrow``, but built from the columns' arrays (zero copy) instead of
     ``Table.from_pandas``, which costs ~35 ms per million rows for pandas metadata nobody reads.
     """
-    schema = load_schema("signals")
+    schema = load_schema("signals", cfg)       # the ADC's range is the rig's
     if not set(df.columns) <= {c.name for c in schema.columns}:
         schema.check(df, where)                 # names the column the schema does not define
     arrow = schema.arrow_schema(df.columns)
@@ -68,9 +69,9 @@ def signals_table(df: pd.DataFrame, where: str, check: bool = True) -> pa.Table:
     return table
 
 
-def mcap_channels(df: pd.DataFrame):
+def mcap_channels(df: pd.DataFrame, cfg: RigConfig):
     from pipeline.ingest.mcap_bulk import ChannelBatch
-    schema = load_schema("signals")
+    schema = load_schema("signals", cfg)
     out = []
     for topic, names in CHANNEL_GROUPS.items():
         present = [c for c in names if c in df.columns]
@@ -79,11 +80,13 @@ def mcap_channels(df: pd.DataFrame):
         title = "pdr." + topic.strip("/")
         out.append(ChannelBatch(topic=topic, schema_name=title, json_schema=schema.json_schema(present, title=title),
                                 fields={c: column(df, c) for c in present}))
+    if "theta_rad" in df.columns:       # the guards as a channel Foxglove plots beside the angle, not only metadata
+        t, guard = column(df, "t_s"), float(cfg.controller.guard_rad)
+        out.append(ChannelBatch(topic=GUARDS_TOPIC, schema_name="pdr.guards",
+                                json_schema=load_schema("guards").json_schema(title="pdr.guards"),
+                                fields={"t_s": t, "lower_rad": np.full(len(t), -guard),
+                                        "upper_rad": np.full(len(t), guard)}))
     return out
-
-
-TIME_NOTE = ("log_time = t_s, seconds since the segment's first sample; the capture's wall-clock start is not "
-             "known (the rig's clock has no date)")
 
 
 def log_time_ns(t_s: np.ndarray) -> np.ndarray:
@@ -91,16 +94,16 @@ def log_time_ns(t_s: np.ndarray) -> np.ndarray:
     return np.round(np.asarray(t_s, dtype=np.float64) * 1e9).astype(np.uint64)
 
 
-def mcap_metadata(cfg: RigConfig, report: dict) -> dict[str, dict[str, str]]:
+def mcap_metadata(cfg: RigConfig, report: dict, time_record: dict[str, str]) -> dict[str, dict[str, str]]:
     return {
         "rig_config": {"config": json.dumps(cfg.to_dict(), sort_keys=True),
                        "sources": json.dumps(cfg.sources, sort_keys=True)},
         "recording": {"source": str(report["recording"]), "sha256": report["sha256"], "run": report["run"]},
-        "time": {"log_time": TIME_NOTE, "wall_clock": "unknown"},
+        "time": time_record,
     }
 
 
-def write_signals(paths: RunPaths, df: pd.DataFrame, row_group_rows: int = ROW_GROUP_ROWS) -> None:
+def write_signals(paths: RunPaths, df: pd.DataFrame, cfg: RigConfig, row_group_rows: int = ROW_GROUP_ROWS) -> None:
     """A run's signals.parquet, checked against the schema; the first ingest output of a run.
 
     The schema check runs in a helper thread while the row groups are encoded (~3 ms per million
@@ -113,9 +116,9 @@ def write_signals(paths: RunPaths, df: pd.DataFrame, row_group_rows: int = ROW_G
     """
     remove_stale_temporaries(paths.root)
     where = str(paths.signals)
-    table = signals_table(df, where, check=False)
+    table = signals_table(df, where, cfg, check=False)
     with ThreadPoolExecutor(max_workers=1) as helper, atomic_path(paths.signals) as tmp:
-        done = [helper.submit(load_schema("signals").check_arrow, table, where)]
+        done = [helper.submit(load_schema("signals", cfg).check_arrow, table, where)]
         fd = os.open(tmp, os.O_RDONLY | os.O_CLOEXEC)      # fdatasync through any descriptor syncs the file
         try:
             with pa.BufferedOutputStream(pa.OSFile(str(tmp), "wb"), SINK_BUFFER_BYTES) as sink, \
@@ -135,7 +138,11 @@ def write_signals(paths: RunPaths, df: pd.DataFrame, row_group_rows: int = ROW_G
 def write_run(paths: RunPaths, df: pd.DataFrame, report: dict, cfg: RigConfig) -> None:
     """The ingest outputs of one run after its ``write_signals``; each file replaced in one rename, the report last."""
     from pipeline.ingest.mcap_bulk import write_mcap
+    from pipeline.ingest.timeline import log_time_origin
+    segment = next((s for s in report.get("segments", ()) if s.get("run") == report.get("run")), None)
+    origin, time_record = log_time_origin(segment)          # the capture's one time axis
     with atomic_path(paths.mcap) as tmp, open(tmp, "wb") as fh:
-        write_mcap(fh, mcap_channels(df), log_time_ns(column(df, "t_s")), mcap_metadata(cfg, report))
+        write_mcap(fh, mcap_channels(df, cfg), log_time_ns(column(df, "t_s")) + np.uint64(origin),
+                   mcap_metadata(cfg, report, time_record))
     write_json(paths.rig_config, {"config": cfg.to_dict(), "sources": cfg.sources})
     write_json(paths.ingest_report, report)

@@ -126,6 +126,9 @@ def _filled(t: bytes, d: bytes, dtype: str, angle: bytes | None, guard: float):
     return out
 
 
+MAX_LOST_ROWS = 50      # the longest run of lost rows filled back (2.5 s at the paper's 50 ms)
+
+
 def lost_samples_filled(t: np.ndarray, dir_log: np.ndarray, angle: np.ndarray | None = None,
                         guard: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The sketch's own loop instants: every gap of about k sample periods (k >= 2, a row lost over
@@ -144,7 +147,11 @@ def lost_samples_filled(t: np.ndarray, dir_log: np.ndarray, angle: np.ndarray | 
     if len(h) < 2:
         return t, np.asarray(dir_log), np.arange(len(t))
     period = float(np.median(h))
-    missing = np.where(h > 1.5 * period, np.rint(h / period).astype(int) - 1, 0) if period > 0 else np.zeros(len(h), int)
+    with np.errstate(over="ignore", invalid="ignore"):
+        k = np.rint(h / period) - 1 if period > 0 else np.zeros(len(h))
+    # a gap longer than MAX_LOST_ROWS periods is not rows lost over serial but a gap (a paused capture, a
+    # timestamp glitch): the simulation steps across it, so its length follows the samples, not the span
+    missing = np.where((h > 1.5 * period) & (k <= MAX_LOST_ROWS), k, 0).astype(int)
     if not missing.any():
         return t, np.asarray(dir_log), np.arange(len(t))
     kept = np.concatenate([[0], np.cumsum(missing + 1)])

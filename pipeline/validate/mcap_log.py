@@ -15,9 +15,9 @@ channel's JSON schema comes from ``schemas/kinematics.json`` or
   current as the sensor reads it, and command;
 - ``/residuals/closed_loop``, ``/residuals/replay``: measured minus model.
 
-log_time is the sample time since the run's first sample (the rig's clock
-gives no date); the ``time`` metadata record says so, so nobody reads it as
-a wall-clock instant.
+log_time is placed as the ingest MCAP's (``ingest.timeline``): the wall clock
+when the terminal stamped a date, else the time since the capture's first
+sample; the ``time`` metadata record says which.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ import numpy as np
 import pandas as pd
 
 from pipeline.columns import column
-from pipeline.ingest.write import TIME_NOTE
+from pipeline.ingest.timeline import epoch_ns, log_time_origin  # noqa: F401  (epoch_ns: tests)
 from pipeline.io.atomic import atomic_path
 from pipeline.schemas import load_schema
 
@@ -71,42 +71,19 @@ def comparison_channels(kin: pd.DataFrame, comparison: pd.DataFrame):
     return out
 
 
-WALL_CLOCK_NOTE = ("log_time = nanoseconds since the Unix epoch: the serial terminal's stamp of the run's first "
-                   "sample (UTC when the stamp gives no zone) plus t_s since that sample")
-
-
-def epoch_ns(stamp: str | None) -> int | None:
-    """Nanoseconds since the Unix epoch of an ISO 8601 date-time (UTC when it has no offset); None for a
-    time of day alone (an Arduino IDE stamp has no date) or anything else."""
-    import calendar
-    from datetime import datetime, timezone
-
-    try:
-        dt = datetime.fromisoformat(stamp) if stamp else None
-    except (TypeError, ValueError):
-        return None
-    if dt is None:
-        return None
-    dt = dt.replace(tzinfo=timezone.utc) if dt.tzinfo is None else dt.astimezone(timezone.utc)
-    return calendar.timegm(dt.utctimetuple()) * 10**9 + dt.microsecond * 1000
-
-
 def write_comparison_mcap(target: Path, run: str, kin: pd.DataFrame, comparison: pd.DataFrame,
-                          model: dict, wall_clock_start: str | None = None) -> None:
+                          model: dict, segment: dict | None = None) -> None:
     """Write ``comparison.mcap`` atomically; identical inputs give identical bytes.
 
-    ``wall_clock_start``: the terminal's stamp of the run's first sample (ingest report), which puts
-    log_time on the wall clock when it carries a date."""
+    ``segment``: the run's segment in its ingest report, which places log_time on the capture's one time
+    axis (``ingest.timeline``): the wall clock when the terminal's stamp carries a date."""
     from pipeline.ingest.mcap_bulk import write_mcap
 
     t = column(kin, "t_s", dtype=float)
     log_time = np.round((t - t[0]) * 1e9).astype(np.uint64) if len(t) else np.zeros(0, np.uint64)
-    start = epoch_ns(wall_clock_start)
-    if start is not None:
-        log_time = log_time + np.uint64(start)
-    metadata = {"time": {"log_time": WALL_CLOCK_NOTE if start is not None else TIME_NOTE,
-                         "t0_s": repr(float(t[0])) if len(t) else "0.0",
-                         "wall_clock": wall_clock_start if start is not None else "unknown"},
+    origin, time_record = log_time_origin(segment)
+    log_time = log_time + np.uint64(origin)
+    metadata = {"time": {**time_record, "t0_s": repr(float(t[0])) if len(t) else "0.0"},
                 "run": {"run": run},
                 "model": {"model": json.dumps(model, sort_keys=True)}}
     with atomic_path(Path(target)) as tmp, open(tmp, "wb") as fh:

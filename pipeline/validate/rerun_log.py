@@ -308,6 +308,11 @@ def _fmt(v) -> str:
     return str(v)
 
 
+def _joules(v: float | None) -> str:
+    """A paper energy, or why there is none (no motor-on window: the motor never on, a capture too short)."""
+    return "not computed (no motor-on window)" if v is None else f"{v:.3f} J"
+
+
 def stats_markdown(name: str, validation: dict, derived: dict[str, dict[str, np.ndarray]] | None = None,
                    coincide: float | None = None) -> str:
     """The statistics panel: metrics of both ways, oscillation/overshoot, energy, per-phase table.
@@ -341,12 +346,12 @@ def stats_markdown(name: str, validation: dict, derived: dict[str, dict[str, np.
     me = validation["measured"]["energy"]
     lines += ["", "## Energy (Sec. IV-C, paper estimate)", ""]
     if me is not None:
-        lines.append(f"- measured: {me['energy_paper_j']:.3f} J")
+        lines.append(f"- measured: {_joules(me['energy_paper_j'])}")
     for way in ways:
         err = validation[way]["energy_error"]
         # no percentage when the measured energy is zero (a constant current): nothing to compare against
         extra = f" ({err['paper_pct']:+.2f} % vs measured)" if err and err.get("paper_pct") is not None else ""
-        lines.append(f"- {way}: {validation[way]['energy']['energy_paper_j']:.3f} J{extra}")
+        lines.append(f"- {way}: {_joules(validation[way]['energy']['energy_paper_j'])}{extra}")
     for title, key in (("Per phase (derive stage)", "phases"), ("Guard overshoot per crossing (derive stage)",
                                                                 "overshoot")):
         table = (derived or {}).get(key)

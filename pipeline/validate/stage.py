@@ -54,11 +54,6 @@ def resolve_model(cfg: RigConfig, override: ModelOverride) -> tuple[PlantSpec, s
     return resolve_config([path], base=cfg).plant_spec(), str(path)
 
 
-def _wall_clock_start(paths: RunPaths) -> str | None:
-    """The terminal's stamp of this run's first sample, from the ingest report (None when unknown)."""
-    return ingest_segment(paths).get("wall_clock_start")
-
-
 def _model_json(spec: PlantSpec, source: str) -> dict:
     return {"source": source, "params": asdict(spec.params), "v_drive": spec.v_drive,
             "guard_rad": spec.guard_rad, "period_s": spec.period_s,
@@ -158,7 +153,7 @@ def validate_run(paths: RunPaths, model_override: ModelOverride = None, *, rrd: 
     write_comparison(paths.comparison, table)
     if mcap:
         write_comparison_mcap(paths.comparison_mcap, paths.name, kin, table, validation["model"],
-                              wall_clock_start=_wall_clock_start(paths))
+                              segment=ingest_segment(paths))
     t4 = time.perf_counter()
     if rrd:
         panels = derived_tables(paths) if derived is None else panel_tables(derived)

@@ -121,3 +121,17 @@ class Workspace:
 def no_traceback(*texts: str) -> None:
     for text in texts:
         assert "Traceback" not in text and "internal error" not in text, text
+
+
+def pdr_run(raw: Path, processed: Path, memory_kb: int | None = None) -> tuple[str, int]:
+    """``pdr run -j 1`` as a user runs it (optionally under an address-space limit, ``ulimit -v``):
+    its whole output, checked to hold no traceback, and its exit status."""
+    import subprocess
+
+    cmd = [PDR, "run", "--raw", str(raw), "--processed", str(processed), "-j", "1"]
+    if memory_kb is not None:
+        cmd = ["bash", "-c", f'ulimit -v {int(memory_kb)} && exec "$@"', "_", *cmd]
+    out = subprocess.run(cmd, capture_output=True, timeout=180)
+    text = out.stdout.decode() + out.stderr.decode()
+    no_traceback(text)
+    return text, out.returncode

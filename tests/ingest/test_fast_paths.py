@@ -79,7 +79,7 @@ def test_check_arrow_on_odd_tables(table, message):
 
 def test_parquet_encodings_read_back_exactly_with_units(tmp_path):
     df = _frame()
-    pq.write_table(signals_table(df, "x"), tmp_path / "s.parquet", **PARQUET_OPTIONS)
+    pq.write_table(signals_table(df, "x", default_config()), tmp_path / "s.parquet", **PARQUET_OPTIONS)
     meta = pq.ParquetFile(tmp_path / "s.parquet").metadata.row_group(0)
     for i in range(meta.num_columns):
         col = meta.column(i)
@@ -96,7 +96,7 @@ def test_write_signals_refuses_a_bad_table_and_leaves_nothing(tmp_path):
     paths = run_paths(tmp_path, "run1")
     df = _frame().assign(theta_rad=[0.0, np.nan, 0.1, 0.2, 0.3, 0.4])
     with pytest.raises(SchemaError, match="'theta_rad' has nulls at rows 1"):
-        write_signals(paths, df)
+        write_signals(paths, df, default_config())
     assert not list(tmp_path.rglob("*.parquet")) and not list(tmp_path.rglob("*.tmp"))
 
 
@@ -107,11 +107,11 @@ def test_write_signals_syncs_each_row_group_except_inside_deferred_sync(tmp_path
     synced = []
     real = os.fdatasync
     monkeypatch.setattr(os, "fdatasync", lambda fd: (synced.append(fd), real(fd)))
-    write_signals(run_paths(tmp_path / "a", "r"), _frame(), row_group_rows=4)
+    write_signals(run_paths(tmp_path / "a", "r"), _frame(), default_config(), row_group_rows=4)
     assert len(synced) == 2                                  # one per row group, started as each is written
     synced.clear()
     with atomic.deferred_sync():                             # pdr run: one os.sync at the end instead
-        write_signals(run_paths(tmp_path / "b", "r"), _frame(), row_group_rows=4)
+        write_signals(run_paths(tmp_path / "b", "r"), _frame(), default_config(), row_group_rows=4)
     assert synced == []
     assert (tmp_path / "a" / "r" / "signals.parquet").read_bytes() == (tmp_path / "b" / "r" / "signals.parquet").read_bytes()
 
@@ -193,7 +193,7 @@ def test_value_text_is_arrows_cast_of_every_value(values):
 def test_signals_in_many_row_groups_read_back_exactly_and_write_the_same_bytes_twice(tmp_path):
     df = _frame()
     for k in (1, 2):
-        write_signals(run_paths(tmp_path / f"p{k}", "r"), df, row_group_rows=4)
+        write_signals(run_paths(tmp_path / f"p{k}", "r"), df, default_config(), row_group_rows=4)
     first, second = (tmp_path / f"p{k}" / "r" / "signals.parquet" for k in (1, 2))
     assert pq.ParquetFile(first).metadata.num_row_groups == 2
     assert first.read_bytes() == second.read_bytes()

@@ -19,7 +19,7 @@ from pipeline.config import default_config
 from pipeline.errors import PdrError
 from pipeline.ingest.stage import ingest_recording
 from pipeline.ingest.mcap_bulk import write_mcap
-from pipeline.ingest.write import CHANNEL_GROUPS, log_time_ns, mcap_channels
+from pipeline.ingest.write import CHANNEL_GROUPS, GUARDS_TOPIC, log_time_ns, mcap_channels
 from pipeline.runs import load_config, load_signals
 from pipeline.schemas import load_schema
 from tests.ingest.helpers import CLEAN, ingest
@@ -76,14 +76,14 @@ def test_mcap_round_trip_values_schemas_metadata(tmp_path):
     result = ingest_recording(_recording(tmp_path), tmp_path / "processed")
     paths, df = result.runs[0], result.tables["rec"]
     messages, schemas, encodings, metadata, summary = _read_mcap(paths.mcap)
-    assert sorted(messages) == sorted(CHANNEL_GROUPS)
+    assert sorted(messages) == sorted([*CHANNEL_GROUPS, GUARDS_TOPIC])
     expected_ns = np.round(df["t_s"].to_numpy() * 1e9).astype(np.uint64)
     for topic, names in CHANNEL_GROUPS.items():
         msgs = messages[topic]
         assert [t for t, _ in msgs] == expected_ns.tolist()
         for name in names:
             assert [m[name] for _, m in msgs] == df[name].tolist()
-        assert schemas[topic] == load_schema("signals").json_schema(list(names), title="pdr." + topic.strip("/"))
+        assert schemas[topic] == load_schema("signals", default_config()).json_schema(list(names), title="pdr." + topic.strip("/"))
         assert encodings[topic] == ("json", "jsonschema")
         for name in names:
             unit = load_schema("signals").column(name).unit
@@ -91,7 +91,10 @@ def test_mcap_round_trip_values_schemas_metadata(tmp_path):
     assert schemas["/encoder"]["properties"]["theta_rad"]["description"].endswith("[rad]")
     assert json.loads(metadata["rig_config"]["config"]) == default_config().to_dict()
     assert metadata["recording"]["sha256"] == result.report["sha256"]
-    assert summary.statistics.message_count == 3 * len(df)
+    assert summary.statistics.message_count == 4 * len(df)
+    guard = default_config().controller.guard_rad                     # a channel Foxglove can plot
+    assert [t for t, _ in messages[GUARDS_TOPIC]] == expected_ns.tolist()
+    assert {(m["lower_rad"], m["upper_rad"]) for _, m in messages[GUARDS_TOPIC]} == {(-guard, guard)}
 
 
 def test_mcap_many_chunks_read_back_in_order(tmp_path):
@@ -102,7 +105,7 @@ def test_mcap_many_chunks_read_back_in_order(tmp_path):
     df = runs[0].signals
     path = tmp_path / "small_chunks.mcap"
     with open(path, "wb") as fh:
-        write_mcap(fh, mcap_channels(df), log_time_ns(df["t_s"].to_numpy()), {}, chunk_bytes=4096)
+        write_mcap(fh, mcap_channels(df, default_config()), log_time_ns(df["t_s"].to_numpy()), {}, chunk_bytes=4096)
     messages, _, _, _, summary = _read_mcap(path)
     assert summary.statistics.chunk_count > 30
     assert [m["counts"] for _, m in messages["/encoder"]] == (t % 977 - 400).tolist()
@@ -125,13 +128,13 @@ def test_mcap_of_one_block_built_inline_is_the_threaded_writers_file(tmp_path, m
     for probe_rows in (mcap_bulk.PROBE_ROWS, 64):
         monkeypatch.setattr(mcap_bulk, "PROBE_ROWS", probe_rows)
         out = io.BytesIO()
-        write_mcap(out, mcap_channels(df), log_time_ns(df["t_s"].to_numpy()), {"m": {"k": "v"}})
+        write_mcap(out, mcap_channels(df, default_config()), log_time_ns(df["t_s"].to_numpy()), {"m": {"k": "v"}})
         files.append(out.getvalue())
     assert files[0] == files[1]
     path = tmp_path / "one_block.mcap"
     path.write_bytes(files[0])
     messages, _, _, _, summary = _read_mcap(path)
-    assert summary.statistics.chunk_count == len(messages) == len(mcap_channels(df))
+    assert summary.statistics.chunk_count == len(messages) == len(mcap_channels(df, default_config()))
     assert [m["counts"] for _, m in messages["/encoder"]] == (t % 977 - 400).tolist()
 
 
@@ -152,7 +155,7 @@ def test_channels_for_columns_not_logged_are_absent(tmp_path):
     (csv.parent / "rec.toml").write_text('[columns]\nadc = ""\ndir = ""\n')
     result = ingest_recording(csv, tmp_path / "processed")
     messages, schemas, *_ = _read_mcap(result.runs[0].mcap)
-    assert sorted(messages) == ["/encoder"]
+    assert sorted(messages) == ["/encoder", GUARDS_TOPIC]
     assert set(schemas["/encoder"]["properties"]) == {"t_s", "counts", "theta_rad"}
 
 

@@ -12,6 +12,7 @@ import pyarrow.compute as pc
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from pipeline.config import default_config
 from pipeline.ingest import mcap_bulk
 from pipeline.ingest.records_kernel import MOVE, join_records
 from pipeline.ingest.write import log_time_ns, mcap_channels
@@ -53,7 +54,7 @@ def test_mcap_written_with_the_compiled_join_is_the_same_file(monkeypatch):
     for min_rows in (len(df) + 1, 0):                    # the Arrow join, then the compiled one
         monkeypatch.setattr(mcap_bulk, "JOIN_KERNEL_MIN_ROWS", min_rows)
         out = io.BytesIO()
-        mcap_bulk.write_mcap(out, mcap_channels(df), log_time_ns(df["t_s"].to_numpy()), {"m": {"k": "v"}},
+        mcap_bulk.write_mcap(out, mcap_channels(df, default_config()), log_time_ns(df["t_s"].to_numpy()), {"m": {"k": "v"}},
                              chunk_bytes=8192)
         files.append(out.getvalue())
     assert files[0] == files[1] and len(files[0]) > 100_000

@@ -10,7 +10,7 @@ from __future__ import annotations
 import importlib
 import pkgutil
 
-from pipeline.errors import ConfigError
+from pipeline.errors import ConfigError, shown
 from pipeline.model.effects.base import REGISTRY, SIGNATURES, Effect, Param
 from pipeline.model.params import PlantSpec, build_spec
 
@@ -49,10 +49,10 @@ def make_effect(name: str, parameters: dict, *, where: str = "effects") -> Effec
     values = {}
     for key, value in parameters.items():
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(f"expected a number in {cls.UNITS[key]}, got {value!r}", key=f"{where}.{name}.{key}")
+            raise ConfigError(f"expected a number in {cls.UNITS[key]}, got {shown(value)}", key=f"{where}.{name}.{key}")
         lo, hi = cls.BOUNDS[key]
-        if not (lo <= float(value) <= hi):
-            raise ConfigError(f"expected a value in [{lo:g}, {hi:g}] {cls.UNITS[key]}, got {value!r}",
+        if not (lo <= value <= hi):         # compared as given: a 400-digit integer is too large for float()
+            raise ConfigError(f"expected a value in [{lo:g}, {hi:g}] {cls.UNITS[key]}, got {shown(value)}",
                               key=f"{where}.{name}.{key}")
         values[key] = float(value)
     return cls(**values)
