@@ -22,7 +22,7 @@ from pathlib import Path
 from pipeline.errors import PdrError
 
 RULE = ("a recording name is 1 to 200 bytes of UTF-8, does not start with '.', and holds no control "
-        "character and no '%'")
+        "character, no '%' and no path separator")
 DISCOVERY_DIR = "discovery"             # processed/discovery/<run>/: pdr discover's default output
 SUMMARY_CSV = "summary.csv"             # processed/summary.csv: one row per run
 DATASET_DIR = "dataset"                 # processed/dataset/<table>/run=<run>/: every run as one dataset
@@ -68,6 +68,8 @@ def name_problem(stem: str) -> str | None:
     if bad is not None:
         return (f"the name holds the control character {bad.encode('unicode_escape').decode('ascii')}; "
                 f"rename it ({RULE})")
+    if "/" in stem or "\\" in stem:
+        return f"'{printable(stem)}' holds a path separator: a name is one file name; rename it ({RULE})"
     if "%" in stem:
         return f"the name holds '%', which dataset readers decode (x%2Fy reads as x/y); rename it ({RULE})"
     if SEGMENT_SUFFIX.search(stem):

@@ -21,16 +21,16 @@ from typing import TYPE_CHECKING
 from pipeline.config import RigConfig, config_from_dict
 from pipeline.errors import PdrError
 from pipeline.names import (DATASET_DIR, DISCOVERY_DIR, MAX_STEM_BYTES, RESERVED_NAMES, SEGMENT_SUFFIX,  # noqa: F401
-                            SUMMARY_CSV, check_recording_name, printable)
+                            SUMMARY_CSV, check_recording_name, name_problem, printable)
 
-_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*")
 
 
 def check_name(name: str) -> str:
-    """A recording name that is safe as a file stem (raw/<name>.csv) and a run folder: the whole name
-    must match (``re.match`` with ``$`` let a trailing newline through)."""
-    if not _NAME.fullmatch(name):
-        raise PdrError(f"expected a recording name of letters, digits, '_', '-' or '.', got {name!r}", key="NAME")
+    """A name pdr gives a new recording (``pdr record --name``, the virtual rig): the one rule every
+    recording in raw/ is held to (``names.name_problem``)."""
+    problem = name_problem(name)
+    if problem is not None:
+        raise PdrError(problem, key="NAME")
     return name
 
 

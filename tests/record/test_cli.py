@@ -30,7 +30,7 @@ def test_refusals_name_what_was_expected(tmp_path):
     (tmp_path / "taken.csv").write_bytes(b"t_ms,counts\n")
     cases = [(["record", "--name", "x"], "expected a serial port"),
              (["record", "/dev/null"], "expected --name"),
-             (["record", "/dev/null", "--name", "bad/name"], "expected a recording name"),
+             (["record", "/dev/null", "--name", "bad/name"], "path separator"),
              (["record", "/dev/null", "--name", "x", "--duration", "0"], "duration > 0"),
              (["record", "/dev/null", "--name", "x", "--no-view", "--save-view", "a.rrd"], "at most one of"),
              (["record", "/dev/null", "--name", "taken", "--raw", str(tmp_path), "--no-view"], "already exists"),
@@ -43,12 +43,12 @@ def test_refusals_name_what_was_expected(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["taken.csv"]
 
 
-@pytest.mark.parametrize("name", ["x\n", "x\ty", "x\r", "\nx", "x\x1b[31m", "x y", ".hidden", "x\u00e9"])
+@pytest.mark.parametrize("name", ["x\n", "x\ty", "x\r", "\nx", "x\x1b[31m", ".hidden", "a/b", "x%2Fy", "run-seg1"])
 def test_names_with_control_characters_are_refused_by_one_rule_and_create_nothing(tmp_path, name):
     res = runner.invoke(app, ["record", "/dev/null", "--name", name, "--raw", str(tmp_path), "--no-view"])
     assert res.exit_code != 0 and isinstance(res.exception, PdrError), res.output
-    assert str(res.exception) == ("key 'NAME': expected a recording name of letters, digits, '_', '-' or '.', "
-                                  f"got {name!r}")
+    assert str(res.exception).startswith("key 'NAME': ") and "rename" in str(res.exception)
+    assert "\n" not in str(res.exception) and "\x1b" not in str(res.exception)     # printed on one clean line
     assert list(tmp_path.iterdir()) == []
 
 
