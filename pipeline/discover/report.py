@@ -136,7 +136,7 @@ def _plain_log_formatter(**kwargs):
     from matplotlib.ticker import LogFormatter
 
     class PlainLogFormatter(LogFormatter):
-        def _num_to_string(self, x, vmin, vmax):
+        def _num_to_string(self, x, _vmin, _vmax):
             return f"{x:g}"
 
     return PlainLogFormatter(**kwargs)

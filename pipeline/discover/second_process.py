@@ -203,5 +203,5 @@ class SecondProcess:
     def __enter__(self) -> "SecondProcess":
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *_exc) -> None:
         self.close()

@@ -55,7 +55,7 @@ def _rgba(r: int, g: int, b: int, a: int = 255) -> int:
 
 RGB = {"measured": (230, 230, 230), "closed_loop": (255, 140, 0), "replay": (0, 170, 255),
        "guard": (230, 60, 60)}
-MEASURED, CLOSED, REPLAY, GUARD = (_rgba(*RGB[k]) for k in ("measured", "closed_loop", "replay", "guard"))
+MEASURED, CLOSED, GUARD = (_rgba(*RGB[k]) for k in ("measured", "closed_loop", "guard"))
 # signal -> (kinematics column, SimResult field, unit)
 SIGNALS = {"theta": ("theta_rad", "theta", "rad"), "omega": ("omega_rad_s", "omega", "rad/s"),
            "current": ("current_a", "current_measured", "A")}
