@@ -137,7 +137,9 @@ def _serve(conn, forked_from) -> None:
 def lean(d):
     """The discovery without the measurement's caches of start estimators (what drawing never reads
     and would only make the hand-over slower)."""
-    meas = replace(d.meas, _estimators={}, _starts={})
+    from pipeline.discover.measurement import StartCache
+
+    meas = replace(d.meas, cache=StartCache(offsets=d.meas.cache.offsets))
     return replace(d, meas=meas, selection=replace(d.selection, meas=meas))
 
 
