@@ -102,6 +102,7 @@ def test_fast_simulator_equals_the_reference_plant(name):
 
 
 @pytest.mark.slow
+@pytest.mark.long        # tests/discover/test_discovery.py names one effect per residual signature in make test
 @pytest.mark.parametrize("name", NAMES)
 def test_virtual_rig_recording_is_named_and_its_parameter_recovered(name, tmp_path):
     hidden = CATALOGUE[name].typical()
