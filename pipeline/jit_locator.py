@@ -1,6 +1,7 @@
 """``SharedLocator``: numba's cache of a package directory's kernels in the user's cache directory, keyed on
 those kernels' sources (``pipeline.jit_cache`` says why; numba imports this module by the name
-``jit_cache.LOCATORS`` gives it)."""
+``jit_cache.LOCATORS`` gives it).  It builds on numba's own locator classes, which are private:
+pyproject pins numba below 0.70, whose ``numba.core.caching`` has them as used here."""
 
 from __future__ import annotations
 
