@@ -1,6 +1,6 @@
 """Rig configuration: built-in defaults < raw/rig.toml < raw/<name>.toml.
 
-The defaults are the paper's rig (shared/MODEL.md) and live only here and in
+The defaults are the paper's rig (docs/MODEL.md) and live only here and in
 ``pipeline.model.params``.  Every key read from a file is checked (known key,
 type, sign) and the error names the file and the key; every resolved value
 remembers where it came from, for the ingest report.

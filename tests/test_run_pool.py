@@ -4,7 +4,7 @@ the same outputs as one process doing every recording."""
 import pytest
 
 from pipeline.run import run_pipeline
-from pipeline.run.runner import start_method
+from pipeline.run.pool import start_method
 from tests.hostile.conftest import workspace  # noqa: F401  (the fixture)
 from tests.hostile.folders import CODE, good_csv
 
@@ -39,7 +39,7 @@ def _worker_state() -> tuple:
 def test_a_worker_starts_preloaded_with_its_garbage_collector_on():
     """The forkserver imports everything with the collector paused (``pipeline.run.preload``); a worker
     must not inherit it paused, and collects young objects at its own threshold."""
-    from pipeline.run.runner import WORKER_GC_THRESHOLD, make_pool
+    from pipeline.run.pool import WORKER_GC_THRESHOLD, make_pool
 
     with make_pool(1) as pool:
         enabled, threshold, warmed, frozen = pool.submit(_worker_state).result()

@@ -15,7 +15,6 @@ import threading
 
 from pipeline.errors import PdrError
 
-CLUSTER_ENV = "PDR_CLUSTER"      # the --cluster option's environment form
 CONNECT_TIMEOUT_S = 10.0
 WORKER_WAIT_S = 30.0
 

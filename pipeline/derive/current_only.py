@@ -17,6 +17,7 @@ import pandas as pd
 
 from pipeline.columns import column
 from pipeline.config import RigConfig
+from pipeline.derive.current import CURRENT_NOTE, UNCERTAINTY_NOTE, current_summary, energy_refusal
 from pipeline.derive.cycles import CYCLE_COLUMNS, cycle_summary
 from pipeline.derive.energy import energy_uncertainty, motor_on_start, run_electrical_energy
 from pipeline.derive.overshoot import OVERSHOOT_COLUMNS, overshoot_summary
@@ -44,8 +45,6 @@ def derive_current_only(signals: pd.DataFrame, cfg: RigConfig, t: np.ndarray, no
 
     ``window``/``order``: the stage's current smoother, so energy here is the same figure as with an encoder.
     """
-    from pipeline.derive.stage import CURRENT_NOTE, UNCERTAINTY_NOTE, current_summary, energy_refusal
-
     spec = cfg.plant_spec()
     not_computed = dict(SKIPPED)
     current = column(signals, "current_a", dtype=float)

@@ -1,4 +1,4 @@
-"""Energy of a run: the paper's estimate and a physical balance (Sec. IV-C, shared/MODEL.md).
+"""Energy of a run: the paper's estimate and a physical balance (Sec. IV-C, docs/MODEL.md).
 
 The paper's figure ``V_RMS * T_s * sum |y[k-1] + y[k]| / 2`` is kept verbatim so
 its numbers (16.496 J simulated, 21.582 J measured, +30.83 %) can be reproduced,

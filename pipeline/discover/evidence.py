@@ -56,7 +56,6 @@ class Assessment:
     delta_bic: float
     heldout_share: float                  # best share of held-out structure removed over the signals
     heldout_gain_floors: float            # best held-out MSE removed, in noise variances
-    worst_worsening_floors: float
     structure_left: float                 # held-out MSE above the noise left after it, in noise variances
     signature_before: float
     signature_after: float
@@ -155,13 +154,13 @@ def assess(ev: Evaluator, meas: Measurement, effects: tuple[Effect, ...], name: 
     n_obs = meas.n * len(meas.signals)
     nll_before = ev.nll(ev.sim(effects))
     delta_bic = 2.0 * (fit.nll - nll_before) + 1.0 * np.log(n_obs)
-    share, gains, worse = heldout_share(fit, ev.floor, meas.n)
+    share, gains = heldout_share(fit, ev.floor, meas.n)
     ex_b, ex_a = heldout_excess(fit, ev.floor)
     left, before = (sum(max(x, 0.0) for x in ex.values()) for ex in (ex_a, ex_b))
     sig_b = signature_energy(name, meas, ev, effects)
     sig_a = signature_energy(name, meas, ev, trial)
     a = Assessment(fit=fit, round=round_, delta_bic=float(delta_bic), heldout_share=share,
-                   heldout_gain_floors=max(gains.values()), worst_worsening_floors=worse,
+                   heldout_gain_floors=max(gains.values()),
                    structure_left=float(left),
                    signature_before=sig_b, signature_after=sig_a)
     a.checks = {
@@ -247,8 +246,8 @@ def heldout_excess(fit: Fit, floor: dict[str, float]) -> tuple[dict[str, float],
             {s: fit.heldout_mse_after[s] / fl - 1.0 for s, fl in floor.items()})
 
 
-def heldout_share(fit: Fit, floor: dict[str, float], n: int) -> tuple[float, dict[str, float], float]:
-    """(share of held-out structure removed, MSE gain per signal in noise variances, worst worsening).
+def heldout_share(fit: Fit, floor: dict[str, float], n: int) -> tuple[float, dict[str, float]]:
+    """(share of held-out structure removed, MSE gain per signal in noise variances).
 
     Structure is MSE above the noise floor, in noise variances, in each signal
     that has enough of it to be worth removing (``min_gain`` over the ``n`` samples); the share
@@ -266,4 +265,4 @@ def heldout_share(fit: Fit, floor: dict[str, float], n: int) -> tuple[float, dic
         return max(ex_b[s] - floor_error(s, n), gains[s], 1e-12) if alone else ex_b[s]
 
     share = max((gains[s] / structure(s) for s in structured), default=0.0)
-    return float(min(share, 1.0)), {s: float(g) for s, g in gains.items()}, float(max(-g for g in gains.values()))
+    return float(min(share, 1.0)), {s: float(g) for s, g in gains.items()}

@@ -26,9 +26,24 @@ from pipeline.estimate.initial_state import STATE_SCALES, Observed, StartEstimat
 from pipeline.estimate.start import Start
 
 
-@dataclass(frozen=True)
+@dataclass
+class StartCache:
+    """The start estimates a measurement has made: the estimators per plant without sensor offset, their
+    starts per (plant, the command's first seconds, offset), and after a reset the counter's held offset.
+
+    The one mutable part of a ``Measurement``, and shared on purpose by the copies ``replace`` makes (another
+    command, another rig value): every start is keyed on what it depends on, so a copy reuses what applies
+    and the work counted (``Measurement.start_runs``) is the discovery's whole."""
+
+    estimators: dict = field(default_factory=dict)
+    starts: dict = field(default_factory=dict)
+    offsets: dict = field(default_factory=dict)
+
+
+@dataclass(eq=False)
 class Measurement:
-    """One recording, as arrays; ``current`` is None when the sketch does not log it."""
+    """One recording, as arrays; ``current`` is None when the sketch does not log it.  The arrays are
+    never changed; the start estimates accumulate in ``cache`` (see ``StartCache``), so this is not frozen."""
 
     name: str
     config: RigConfig
@@ -47,11 +62,7 @@ class Measurement:
     # per signal whose zero ingest read off the data itself (a current zero = "auto"), the number of
     # rest readings it is the mean of: an offset within that mean's error may be the zero's own
     zero_samples: dict[str, int] = field(default_factory=dict, compare=False)
-    # start estimators per plant without sensor offset, and their starts per (plant, the command's
-    # first seconds, offset); shared by ``replace``d copies, hence keyed on the command too
-    _estimators: dict = field(default_factory=dict, compare=False, repr=False, hash=False)
-    _starts: dict = field(default_factory=dict, compare=False, repr=False, hash=False)
-    _offsets: dict = field(default_factory=dict, compare=False, repr=False, hash=False)   # after a reset
+    cache: StartCache = field(default_factory=StartCache, repr=False)
 
     @property
     def onset(self) -> int | None:
@@ -104,27 +115,27 @@ class Measurement:
     @property
     def start_runs(self) -> int:
         """Simulations run for start estimates so far, by this measurement and the copies sharing its estimators."""
-        return sum(e.runs for e in self._estimators.values())
+        return sum(e.runs for e in self.cache.estimators.values())
 
     def x0(self, spec: PlantSpec, dir_log: np.ndarray | None = None) -> Start:
         """The start (x0 with its uncertainty, the pre-log commands) under ``spec``, estimated
         from the data on the recording's own instants as validation does (so the MSEs agree)."""
         d = self.dir if dir_log is None else dir_log
         plant = without_offset(spec)
-        if plant not in self._estimators:
-            self._estimators[plant] = StartEstimator(plant, self.t, self.observed,
+        if plant not in self.cache.estimators:
+            self.cache.estimators[plant] = StartEstimator(plant, self.t, self.observed,
                                                      angle_offset=not self.angle_reference_known)
-        estimator = self._estimators[plant]
+        estimator = self.cache.estimators[plant]
         key = (plant, estimator.window(d), spec.I0)
-        if key not in self._starts:
+        if key not in self.cache.starts:
             if self.angle_reference_known:
-                self._starts[key] = estimator.start(d, spec.I0)
-            elif self._offsets:
+                self.cache.starts[key] = estimator.start(d, spec.I0)
+            elif self.cache.offsets:
                 # the offset is the counter's, one per segment: estimated under the first model asked
                 # (the base), then held, as the angle residual is taken about its own mean anyway
                 # (re-estimating it for every candidate's plant tripled each start's cost), and fitted
                 # again under the final model (``discover.start_refit``)
-                self._starts[key] = estimator.start(d, spec.I0, offset=self._offsets["segment"])
+                self.cache.starts[key] = estimator.start(d, spec.I0, offset=self.cache.offsets["segment"])
             else:
                 # the first seconds alone barely tell the counter's offset from where the springs hold
                 # the pinion (a segment opening at rest, creeping): the whole segment pins it
@@ -132,9 +143,9 @@ class Measurement:
                 offset = self._segment_offset(plant, spec.I0, start, d)
                 if offset is not None:
                     start = estimator.start(d, spec.I0, offset=offset)
-                    self._offsets["segment"] = offset
-                self._starts[key] = start
-        return self._starts[key]
+                    self.cache.offsets["segment"] = offset
+                self.cache.starts[key] = start
+        return self.cache.starts[key]
 
     def _segment_offset(self, plant: PlantSpec, I0: float, start: Start, d: np.ndarray) -> float | None:
         """The counter's offset that, with the start moved along with it, replays the whole segment
@@ -171,7 +182,7 @@ class Measurement:
     @property
     def held_offset(self) -> float | None:
         """After a reset: the counter's offset the starts are estimated with (None before one is)."""
-        return self._offsets.get("segment")
+        return self.cache.offsets.get("segment")
 
     def segment_offset(self, spec: PlantSpec, dir_log: np.ndarray) -> float | None:
         """After a reset, the counter's offset that replays the whole segment best under ``spec`` and
@@ -183,21 +194,21 @@ class Measurement:
     def start_with_offset(self, spec: PlantSpec, dir_log: np.ndarray, offset: float) -> Start:
         """The start under ``spec`` and ``dir_log`` with the counter's ``offset`` (not remembered)."""
         self.x0(spec, dir_log)
-        return self._estimators[without_offset(spec)].start(dir_log, spec.I0, offset=offset)
+        return self.cache.estimators[without_offset(spec)].start(dir_log, spec.I0, offset=offset)
 
     def hold_offset(self, spec: PlantSpec, offset: float) -> None:
         """Hold the counter's ``offset``; the starts under ``spec``'s plant are estimated again with it."""
-        self._offsets["segment"] = offset
+        self.cache.offsets["segment"] = offset
         plant = without_offset(spec)
-        for key in [k for k in self._starts if k[0] == plant]:
-            del self._starts[key]
+        for key in [k for k in self.cache.starts if k[0] == plant]:
+            del self.cache.starts[key]
 
     def pin_start(self, spec: PlantSpec, dir_log: np.ndarray, start: Start) -> None:
         """Use ``start`` for ``spec`` under ``dir_log`` from now on (a start refined on more than the
         first seconds: ``discover.start_refit``)."""
         self.x0(spec, dir_log)
         plant = without_offset(spec)
-        self._starts[(plant, self._estimators[plant].window(dir_log), spec.I0)] = start
+        self.cache.starts[(plant, self.cache.estimators[plant].window(dir_log), spec.I0)] = start
 
     def simulate_ways(self, spec: PlantSpec, dir_log: np.ndarray) -> dict[str, SimResult]:
         """Closed loop and replay at the recording's own instants, from its start (validation's two ways)."""

@@ -4,7 +4,7 @@ A recording may open anywhere: logging started while the rig ran, a segment afte
 reset, a sketch whose first current reading is three noise sigmas off.  The state
 x0 = [I, w, delta] at the first sample, the command in force there and, under a loop delay
 Td, the commands decided before the first sample and still on their way to the motor are
-nuisance parameters (shared/MODEL.md).  One noisy first sample says little about them; the
+nuisance parameters (docs/MODEL.md).  One noisy first sample says little about them; the
 first seconds say a lot.  The replayed response of a linear plant is affine in x0 and in
 each pre-log command, so superposed simulations (one per unit initial state, one per
 pre-log command, one for the logged commands) make the estimate a weighted linear least-

@@ -29,7 +29,7 @@ MOVE = 32                 # bytes per piece move; sources padded and output over
 
 
 @intrinsic
-def _move32(typingctx, dst, dst_at, src, src_at):
+def _move32(_typingctx, dst, dst_at, src, src_at):
     """``dst[dst_at:dst_at + 32] = src[src_at:src_at + 32]`` as one constant-size memcpy (no bounds check)."""
     def codegen(context, builder, sig, args):
         d, d_at, s, s_at = args

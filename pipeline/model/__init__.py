@@ -20,8 +20,9 @@ KERNEL_SOURCES = ("loop.py", "linear.py", "modal.py", "nonsmooth.py", "event_ste
 def drop_stale_jit_cache(here: Path = Path(__file__).resolve().parent) -> bool:
     """Remove numba's cache files of the kernel sources if the sources differ from the last stamp; True if removed.
 
-    Only the default cache location (``__pycache__`` beside the sources) is
-    looked after; a NUMBA_CACHE_DIR elsewhere is the caller's to manage.
+    Only numba's in-tree cache (``__pycache__`` beside the sources, its fallback where the user's cache
+    directory is not writable) is looked after here; ``pipeline.jit_locator`` keys the shared cache on
+    every kernel source already.
     """
     digest = hashlib.sha256(b"".join((here / name).read_bytes() for name in KERNEL_SOURCES)).hexdigest()
     cache = here / "__pycache__"

@@ -1,5 +1,5 @@
 """The controller around any plant, written once: the sketch's sampled guard, the motor-off start, the
-command queue of the loop delay (shared/MODEL.md, hybrid automaton).  Compiled with numba.
+command queue of the loop delay (docs/MODEL.md, hybrid automaton).  Compiled with numba.
 
 At each sample instant the controller reads theta and decides the command
 (``decide``: the log before the sketch starts or in replay, then the sampled

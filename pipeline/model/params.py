@@ -5,7 +5,7 @@ Why ``Ra = 2.59 Ohm`` and not Table I's printed ``2.59e2``: with 259 Ohm the
 static gain theta/u is 0.0165 rad/V, so 6 V holds the pinion near 0.10 rad, the
 0.94 rad guard is never reached and nothing switches; with 2.59 Ohm the gain
 is 1.65 rad/V, the rig oscillates with about 13 switches in 24.95 s and the
-paper's energy estimate comes out near its 16.496 J (see shared/MODEL.md).
+paper's energy estimate comes out near its 16.496 J (see docs/MODEL.md).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Hybrid automaton simulator (shared/MODEL.md): sampled bang-bang guard, ZOH input, every effect.
+"""Hybrid automaton simulator (docs/MODEL.md): sampled bang-bang guard, ZOH input, every effect.
 
 The automaton: modes q1 (u = +v_drive) and q2 (u = -v_drive) share one flow
 matrix (eqs. 2, 4/8, 5); the controller samples theta at the recording's own

@@ -1,7 +1,7 @@
 """The reference plant: the hybrid model integrated independently of the fast simulator.
 
 The fast simulator (``pipeline.model.simulate``) advances each mode with a
-matrix exponential; this module integrates the same physics (shared/MODEL.md)
+matrix exponential; this module integrates the same physics (docs/MODEL.md)
 with scipy's ``solve_ivp`` (DOP853, tight tolerances) and locates every
 non-smooth instant with events, so the two can be compared without either
 being the other's oracle:

@@ -1,7 +1,7 @@
 """A randomised virtual rig: a lab's own conventions and capture, drawn from everything the format allows.
 
 ``randomised_setup(rng)`` draws what one lab's rig and capture could look like
-(shared/INTERFACE.md lets a rig declare all of it), with 0-3 hidden effects from
+(a rig TOML may declare all of it), with 0-3 hidden effects from
 ``CATALOGUE`` or one effect outside it.  Discovery tuned on the paper's rig is
 only worth something if it holds on these (issue 15).  The drawer walks
 ``CATALOGUE`` itself, so an effect added there is drawn with no change here;

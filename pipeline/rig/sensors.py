@@ -1,4 +1,4 @@
-"""The rig's sensor chain (shared/MODEL.md, Sec. III-C): what the Arduino turns the true states into.
+"""The rig's sensor chain (docs/MODEL.md, Sec. III-C): what the Arduino turns the true states into.
 
 Pure functions from true signals (and a numpy Generator) to what the sketch
 prints: ``millis()`` stamps, integer encoder counts, the ACS712 voltage and its
@@ -81,7 +81,7 @@ def calibrated_zero_v(part_zero: float, sensitivity_v_per_a: float, offset_a: fl
     """The zero_v a user measures at rest and writes down (0.1 mV resolution).
 
     Averaging floor-quantised readings gives the part's zero minus half a step;
-    a sensor offset I0 (shared/MODEL.md ``current_sensor_offset``) means the
+    a sensor offset I0 (docs/MODEL.md ``current_sensor_offset``) means the
     written zero is off by I0*S, so the pipeline reads I + I0.
     """
     return round(part_zero - 0.5 * vref / steps - offset_a * sensitivity_v_per_a, 4)

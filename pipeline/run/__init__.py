@@ -17,7 +17,8 @@ import typer
 
 from pipeline.run.lock import processed_lock
 from pipeline.run.report import RunReport, print_report
-from pipeline.run.runner import CHUNK_MAX, chunks, run_pipeline
+from pipeline.run.pool import CHUNK_MAX, chunks
+from pipeline.run.runner import run_pipeline
 from pipeline.run.stages import process_recording
 from pipeline.run.stamp import Stamp, code_version, stamp_for
 

@@ -1,4 +1,4 @@
-"""What ``pdr run``'s forkserver imports before it forks a worker (``runner.PRELOAD``; a dask worker too).
+"""What ``pdr run``'s forkserver imports before it forks a worker (``pool.PRELOAD``; a dask worker too).
 
 Every worker inherits these modules imported, the overview figure drawn and
 the model's kernels loaded (``pipeline.validate.warmup``, last).  Python's

@@ -7,7 +7,7 @@ a ``forkserver`` that has already imported numpy, pandas, pyarrow, rerun and
 matplotlib, so a worker starts in milliseconds; elsewhere (Windows) they are
 spawned.  Either way that start takes ~2 s on one core; meanwhile this process
 ingests recordings from the end of the list (``ingest_ahead``), which the
-workers then skip.  A worker whose parent dies exits too (``_init_worker``):
+workers then skip.  A worker whose parent dies exits too (``pool._init_worker``):
 a ``kill -9`` of ``pdr run`` leaves no process behind.
 
 One bad recording never stops the others: its error is reported, its stale
@@ -19,7 +19,6 @@ status is non-zero.  Two ``pdr run`` on one folder run one after the other
 from __future__ import annotations
 
 import importlib
-import multiprocessing
 import os
 import shutil
 import tempfile
@@ -35,57 +34,10 @@ from pipeline.io.atomic import deferred_sync, remove_stale_temporaries
 from pipeline.run.lock import processed_lock
 from pipeline.run.recordings import scan_raw
 from pipeline.run.report import RunReport
-from pipeline.run.stop import children_ignore_sigint
-from pipeline.run.stages import derive_ahead, ingest_ahead, process_chunk
+from pipeline.run.pool import chunks, make_pool
+from pipeline.run.stages import derive_ahead, failed_ahead, ingest_ahead, process_chunk
 from pipeline.run.stamp import Stamp, code_version, previous_runs, prune_orphans, stamp_for, up_to_date, withdraw
 from pipeline.runs import SUMMARY_CSV
-
-# Imported once in the forkserver, inherited by every worker (its docstring says what it holds).
-PRELOAD = ["pipeline.run.preload"]
-CHUNK_MAX = 4      # recordings per worker task: one verify call for 4 files instead of 4 starts of the tool
-
-
-def start_method() -> str:
-    """``forkserver`` where the platform has it (Linux, macOS), else ``spawn`` (Windows)."""
-    return "forkserver" if "forkserver" in multiprocessing.get_all_start_methods() else "spawn"
-
-
-# A worker collects young objects every 10,000 net allocations of container objects instead of Python's
-# 700: a recording allocates many short-lived ones (pandas, matplotlib, rerun), and most of the
-# collections at 700 find nothing to free; the garbage left between them is a few MB at most
-# (docs/PERFORMANCE.md has the figures).
-WORKER_GC_THRESHOLD = (10_000, 10, 10)
-
-
-def _init_worker() -> None:
-    """Worker initializer: fewer garbage collections, and exit as soon as the process that made the
-    pool is gone (even by ``kill -9``)."""
-    import gc
-
-    gc.set_threshold(*WORKER_GC_THRESHOLD)
-    parent = multiprocessing.parent_process()
-    if parent is None:
-        return
-
-    def wait() -> None:
-        parent.join()
-        os._exit(1)
-
-    threading.Thread(target=wait, name="pdr-parent-watch", daemon=True).start()
-
-
-def make_pool(jobs: int, method: str | None = None):
-    from concurrent.futures import ProcessPoolExecutor
-
-    method = method or start_method()
-    ctx = multiprocessing.get_context(method)
-    if method == "forkserver":
-        from multiprocessing import forkserver
-
-        ctx.set_forkserver_preload(PRELOAD)
-        with children_ignore_sigint():      # Ctrl-C is the parent's to handle (pipeline.run.stop)
-            forkserver.ensure_running()
-    return ProcessPoolExecutor(max_workers=jobs, mp_context=ctx, initializer=_init_worker)
 
 
 def _isolated(csv: Path, processed: Path, stamp: Stamp, method: str | None) -> dict:
@@ -98,20 +50,6 @@ def _isolated(csv: Path, processed: Path, stamp: Stamp, method: str | None) -> d
             withdraw(processed, previous_runs(processed, csv))
             return {"recording": csv.name, "status": "failed", "runs": [],
                     "error": f"the worker process died while processing it ({err})", "timing_s": {}}
-
-
-def chunks(todo: list, jobs: int) -> list[list]:
-    """Consecutive slices of ``todo``: up to ``CHUNK_MAX`` each, small enough that every worker gets several.
-
-    The last ``2 * jobs`` slices hold half as many, so the workers finish
-    within about one recording of each other instead of one whole chunk.
-    """
-    size = max(1, min(CHUNK_MAX, len(todo) // (4 * jobs)))
-    tail_size = max(1, size // 2)
-    tail = min(len(todo), 2 * jobs * tail_size) if size > 1 else 0
-    head = (len(todo) - tail) // size * size
-    return ([todo[i:i + size] for i in range(0, head, size)]
-            + [todo[i:i + tail_size] for i in range(head, len(todo), tail_size)])
 
 
 def _start_pool(pool) -> None:
@@ -157,13 +95,6 @@ def _ingest_ahead(todo: list[tuple[Path, Stamp]], processed: Path, starting: thr
             if ahead[csv.name]["error"] is None:
                 derive_ahead(ahead[csv.name], processed)
     return ahead
-
-
-def _failed_ahead(csv: Path, processed: Path, info: dict) -> dict:
-    """The result of a recording whose ingest failed in ``_ingest_ahead`` (it goes to no worker)."""
-    withdraw(processed, sorted(set(previous_runs(processed, csv)) | set(info["runs"])))
-    return {"recording": csv.name, "status": "failed", "runs": info["runs"], "error": info["error"],
-            "timing_s": {"ingest": info["wall_s"]}, "cpu_s": info["cpu_s"], "cpu_stage_s": {"ingest": info["cpu_s"]}}
 
 
 @contextmanager
@@ -220,7 +151,7 @@ def _execute(todo: list[tuple[Path, Stamp]], processed: Path, jobs: int, show_pr
                 failed = {csv.name for csv, _stamp in todo if ahead.get(csv.name, {}).get("error")}
                 for csv, _stamp in todo:
                     if csv.name in failed:
-                        results.append(_failed_ahead(csv, processed, ahead.pop(csv.name)))
+                        results.append(failed_ahead(csv, processed, ahead.pop(csv.name)))
                         bar.advance(task)
                 todo = [item for item in todo if item[0].name not in failed]
                 futures = {}
@@ -281,7 +212,7 @@ def run_pipeline(raw: Path, processed: Path, *, jobs: int = 2, force: bool = Fal
 
     ``code`` pins the code version in the stamps (default: ``code_version()``),
     for callers that must not see a source tree being edited as a code change;
-    ``method`` the pool's start method (default: ``start_method()``);
+    ``method`` the pool's start method (default: ``pool.start_method()``);
     ``cluster`` a dask scheduler's address: the recordings go there instead of the local pool.
     """
     raw, processed = Path(raw), Path(processed)

@@ -1,42 +1,20 @@
-"""The stages ``pdr run`` chains, declared with what each reads and writes in ``processed/<run>/``,
-and the work one worker does on a few recordings.
+"""The work one worker does on a few recordings: the stages ``pdr run`` chains (declared, with what each
+reads and writes, in ``stamp.STAGES``).
 
-A stage's inputs and outputs are ``RunPaths`` attributes: the incremental cache
-counts a recording done only when every declared output exists, and the
-runner never needs to know a file name.  One bad recording never stops the
-others: everything here returns failures instead of raising them.
+One bad recording never stops the others: everything here returns failures instead of raising them.
 """
 
 from __future__ import annotations
 
 import shutil
 import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
 from pipeline.errors import describe_failure
 from pipeline.io.atomic import deferred_sync, write_json
+from pipeline.run.stamp import previous_runs, withdraw
 from pipeline.runs import RunPaths
-
-
-@dataclass(frozen=True)
-class Stage:
-    name: str
-    inputs: tuple[str, ...]         # RunPaths attributes read (ingest reads the raw file and its TOML layers)
-    outputs: tuple[str, ...]        # RunPaths attributes written
-
-
-STAGES = (
-    Stage("ingest", (), ("signals", "mcap", "ingest_report", "rig_config")),
-    Stage("derive", ("signals", "rig_config"), ("kinematics", "phases", "overshoot", "cycles", "summary")),
-    Stage("validate", ("rig_config", "kinematics", "phases", "overshoot"),
-          ("validation", "comparison", "rrd", "overview_png")),
-)
-
-
-def declared_outputs(paths: RunPaths) -> list[Path]:
-    return [getattr(paths, name) for stage in STAGES for name in stage.outputs]
 
 
 def _child_cpu() -> float:
@@ -68,7 +46,6 @@ def process_chunk(items: list, processed: Path, ingested: dict[str, dict] | None
     says it was done), synced with its outputs.  ``backgrounds``: a folder where the
     workers of one run share the overview figures' backgrounds (``plots.shared_backgrounds``).
     """
-    from pipeline.run.stamp import withdraw
     from pipeline.validate.plots import shared_backgrounds
     from pipeline.validate.rerun_log import verify_rrds
 
@@ -146,6 +123,13 @@ def ingest_ahead(csv: Path, processed: Path, ingest: Callable[[], list[str]] | N
     return out
 
 
+def failed_ahead(csv: Path, processed: Path, info: dict) -> dict:
+    """The result of a recording whose ingest failed ahead of the workers (it goes to no worker)."""
+    withdraw(processed, sorted(set(previous_runs(processed, csv)) | set(info["runs"])))
+    return {"recording": csv.name, "status": "failed", "runs": info["runs"], "error": info["error"],
+            "timing_s": {"ingest": info["wall_s"]}, "cpu_s": info["cpu_s"], "cpu_stage_s": {"ingest": info["cpu_s"]}}
+
+
 def derive_ahead(info: dict, processed: Path) -> None:
     """Derive the runs ``ingest_ahead`` made (``info``), still in ``pdr run``'s own process; never raises.
 
@@ -172,7 +156,6 @@ def all_stages(csv: Path, processed: Path, ingested: dict | None = None) -> tupl
     """
     from pipeline.derive.stage import derive_and_write
     from pipeline.ingest.stage import ingest_recording
-    from pipeline.run.stamp import previous_runs
     from pipeline.validate.stage import validate_run
 
     timing = {"ingest": 0.0, "derive": 0.0}

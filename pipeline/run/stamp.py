@@ -16,11 +16,31 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from pipeline.config import config_layers_for
-from pipeline.run.stages import STAGES, declared_outputs
 from pipeline.runs import SEGMENT_SUFFIX, RunPaths, glob_escape
 
 PACKAGE_ROOT = Path(__file__).resolve().parent.parent
 SCHEMA_ROOT = PACKAGE_ROOT.parent / "schemas"
+
+
+@dataclass(frozen=True)
+class Stage:
+    name: str
+    inputs: tuple[str, ...]         # RunPaths attributes read (ingest reads the raw file and its TOML layers)
+    outputs: tuple[str, ...]        # RunPaths attributes written
+
+
+# the stages pdr run chains, with the RunPaths attributes each reads and writes: a recording counts as done
+# only when every declared output exists, and the runner never needs to know a file name
+STAGES = (
+    Stage("ingest", (), ("signals", "mcap", "ingest_report", "rig_config")),
+    Stage("derive", ("signals", "rig_config"), ("kinematics", "phases", "overshoot", "cycles", "summary")),
+    Stage("validate", ("rig_config", "kinematics", "phases", "overshoot"),
+          ("validation", "comparison", "rrd", "overview_png")),
+)
+
+
+def declared_outputs(paths: RunPaths) -> list[Path]:
+    return [getattr(paths, name) for stage in STAGES for name in stage.outputs]
 
 
 def sha256_file(path: Path) -> str:

@@ -1,6 +1,7 @@
 """End to end on a real cluster of separate processes: ``dask scheduler`` and two ``dask worker`` on
-127.0.0.1 from this environment, ``pdr run --cluster`` on 50 virtual-rig recordings, one worker killed
-during the run; the outputs must be those of a local run."""
+127.0.0.1 from this environment, ``pdr run --cluster`` on 16 virtual-rig recordings, one worker killed
+during the run; the outputs must be those of a local run.  16 recordings go in ten tasks (of two, then
+of one): when the first four are written back, both workers still hold tasks, so the one killed loses some."""
 
 import json
 import os
@@ -18,7 +19,7 @@ from tests.cluster.helpers import differences, make_raw
 pytestmark = [pytest.mark.cluster, pytest.mark.slow]
 
 BIN = Path(sys.executable).parent
-RECORDINGS = 50
+RECORDINGS = 16
 
 
 def _wait(predicate, timeout: float, what: str):
@@ -79,7 +80,7 @@ def test_pdr_run_on_a_cluster_with_a_worker_killed_matches_a_local_run(dask_clus
                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
     try:
         # Kill one worker once a few recordings are written back: it holds a chunk then.
-        _wait(lambda: len(list(processed.glob("*/stamp.json"))) >= 6 or run.poll() is not None, 120,
+        _wait(lambda: len(list(processed.glob("*/stamp.json"))) >= 4 or run.poll() is not None, 120,
               "the first recordings")
         assert run.poll() is None, run.communicate()[0]
         victim.send_signal(signal.SIGKILL)

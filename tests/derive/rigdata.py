@@ -1,7 +1,7 @@
 """Virtual-rig recordings as the derive stage sees them, without going through ingest.
 
 The sample table is built from the rig's own truth rows (what the board printed:
-millis(), counts, ADC, dir) with the conversions of shared/MODEL.md, so these
+millis(), counts, ADC, dir) with the conversions of docs/MODEL.md, so these
 tests depend on the virtual rig but not on the ingest stage's parser.
 """
 

@@ -6,7 +6,8 @@ import pytest
 
 from pipeline.derive.cycles import log_decrement
 from pipeline.derive.energy import run_energy
-from pipeline.derive.stage import CURRENT_ORDER, CURRENT_WINDOW, derive_tables
+from pipeline.derive.current import CURRENT_ORDER, CURRENT_WINDOW
+from pipeline.derive.stage import derive_tables
 from pipeline.derive.phases import phase_bounds
 from pipeline.derive.velocity import smooth_by_phase
 from pipeline.rig.recording import RigSetup

@@ -1,7 +1,10 @@
-"""Discovery on virtual-rig recordings (ingested and derived like a user's): the issue's bar.
+"""Discovery on virtual-rig recordings (ingested and derived like a user's).
 
-A representative subset; the full matrix (every effect x 2 magnitudes x 2 noise levels x
-seeds, pairs, clean, no-dir, out of catalogue) is ``make bench-discovery``.
+``make test`` runs a representative handful: one effect per residual signature (the paper's viscous
+friction for "everywhere", Coulomb friction, backlash, loop delay; the sensor offset in the stack), a
+stack of two, a clean recording and an effect outside the catalogue.  The other cases are marked
+``long`` (``make test-all``); the full matrices are ``make bench-discovery`` and
+``make bench-discovery-shipped``.
 """
 
 from dataclasses import replace
@@ -41,19 +44,20 @@ def test_paper_story_names_viscous_friction(tmp_path):
 
 
 # one magnitude per effect here, both in the benchmark; where the effect lives decides the MSE
+LONG = pytest.mark.long
 CASES = [
-    ("viscous_friction", 2.5e-4, "theta"),
-    ("coulomb_friction", 1.5e-3, "theta"),
-    ("driver_voltage_drop", 0.4, "theta"),
-    ("backlash", 0.05, "theta"),
-    ("loop_delay", 0.05, "theta"),
-    ("current_sensor_offset", 0.06, "current"),
-    ("rack_inertia", 1.94e-3, "theta"),
-    ("spring_stiffness", 0.8, "theta"),
+    pytest.param("viscous_friction", 2.5e-4, "theta", marks=LONG, id="viscous_friction"),
+    pytest.param("coulomb_friction", 1.5e-3, "theta", id="coulomb_friction"),
+    pytest.param("driver_voltage_drop", 0.4, "theta", marks=LONG, id="driver_voltage_drop"),
+    pytest.param("backlash", 0.05, "theta", id="backlash"),
+    pytest.param("loop_delay", 0.05, "theta", id="loop_delay"),
+    pytest.param("current_sensor_offset", 0.06, "current", marks=LONG, id="current_sensor_offset"),
+    pytest.param("rack_inertia", 1.94e-3, "theta", marks=LONG, id="rack_inertia"),
+    pytest.param("spring_stiffness", 0.8, "theta", marks=LONG, id="spring_stiffness"),
 ]
 
 
-@pytest.mark.parametrize("name,value,signal", CASES, ids=[c[0] for c in CASES])
+@pytest.mark.parametrize("name,value,signal", CASES)
 def test_each_effect_is_named_first_with_its_parameter(tmp_path, name, value, signal):
     kin, rig, _ = rig_kinematics((_effect(name, value),), seed=5, work=tmp_path)
     d = discover(kin, rig, name)
@@ -74,6 +78,7 @@ def test_two_stacked_effects_are_both_named(tmp_path):
     assert d.mse_after["replay"]["current"] < 0.5 * d.mse_before["replay"]["current"]
 
 
+@LONG
 def test_three_stacked_effects_each_within_20_percent_whatever_the_order(tmp_path, monkeypatch):
     """Viscous + Coulomb + loop delay at once: each named, each parameter within 20 %; the joint refit
     lands on the same values from either order of the effects.  Discovery's budget counts work, not
@@ -124,6 +129,7 @@ def test_effect_outside_the_catalogue_is_unexplained_not_misnamed():
     assert discovery_json(d, "cogging")["unexplained"]
 
 
+@LONG
 def test_without_a_logged_command_the_delay_is_still_found(tmp_path):
     """No dir column: replay uses the derive stage's inferred command, whose motor start is fitted."""
     kin, rig, _ = rig_kinematics((_effect("loop_delay", 0.04),), seed=2, work=tmp_path,
@@ -135,6 +141,7 @@ def test_without_a_logged_command_the_delay_is_still_found(tmp_path):
     assert discovery_json(d, "nodir")["dir_source"] == "inferred"
 
 
+@LONG
 def test_a_catalogued_effect_beside_an_uncatalogued_one_is_named_and_the_rest_left_unexplained():
     paper = default_config()
     truth = replace(paper, model=paper.model.with_(b=paper.model.b + 3e-4))     # hidden viscous friction
@@ -145,6 +152,7 @@ def test_a_catalogued_effect_beside_an_uncatalogued_one_is_named_and_the_rest_le
     assert d.verdict == "unexplained"
 
 
+@LONG
 def test_the_work_budget_decides_the_same_way_on_any_machine(tmp_path, monkeypatch):
     """Discovery's budget is counted in simulated samples, not CPU seconds (BLAS threads waiting for
     a core on a loaded machine counted as CPU): a budget the first round already spends stops the
@@ -159,6 +167,7 @@ def test_the_work_budget_decides_the_same_way_on_any_machine(tmp_path, monkeypat
     assert cut.simulations < full.simulations
 
 
+@LONG
 def test_a_later_run_on_the_same_recording_gets_only_what_the_total_budget_leaves(tmp_path, monkeypatch):
     """The runner-up's rounds (and the rounds after resettled switches) share one budget with the first
     run, so the slowest recording is bounded as a whole: a run started with the total already spent

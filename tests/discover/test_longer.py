@@ -10,6 +10,7 @@ from tests.discover.test_nuisance import _randomised
 
 
 @pytest.mark.slow
+@pytest.mark.long
 def test_two_effects_on_a_ridge_are_pinned_down_by_the_cycles_the_search_did_not_see(tmp_path):
     """Randomised draw 277 (seed 15): a backlash beside a heavier rack, 7666 samples.  On the search's 2000
     the gap came out 27 % off (0.056 for 0.044), a rack 0.2 % lighter making up for it; refitted on

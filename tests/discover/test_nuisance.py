@@ -13,7 +13,8 @@ from pipeline.discover.stage import discover
 from pipeline.model.effects import make_effect
 from tests.validate.rig_cases import SHIPPED_NOISE_V, rig_case, sensor_config
 
-pytestmark = pytest.mark.slow
+# each test re-runs a whole discovery on a pinned case for one path of the search: make test-all
+pytestmark = [pytest.mark.slow, pytest.mark.long]
 
 VISCOUS = make_effect("viscous_friction", {"b": 7.7e-4})
 

@@ -2,10 +2,14 @@
 
 import numpy as np
 import pandas as pd
+import pytest
 
 from pipeline.discover.stage import discover
 from pipeline.model.effects import make_effect
 from tests.discover.synthetic import rig_kinematics
+
+# each test re-runs a whole discovery on a pinned stack for one path of the search: make test-all
+pytestmark = [pytest.mark.slow, pytest.mark.long]
 
 NOISE_4X = 4 * 5.0 / 1024          # V: four ADC steps of sensor noise
 

@@ -11,7 +11,7 @@ import sys
 from pathlib import Path
 
 from pipeline.rig.recording import RigSetup, make_recording
-from tests.ingest.test_realdata import REAL as REALDATA  # noqa: F401  (one place finds shared/realdata)
+from tests.ingest.test_realdata import REAL as REALDATA  # noqa: F401  (one place names tests/data/realdata)
 
 PDR = str(Path(sys.executable).with_name("pdr"))
 CODE = "pinned"               # stamps must not see the source tree being edited while the tests run

@@ -260,7 +260,7 @@ def test_the_real_captures_are_processed_or_refused_in_one_line(workspace):
         for stem, period in stems.items():
             shutil.copy(REALDATA / folder / f"{stem}.csv", raw / f"{stem}.csv")
             (raw / f"{stem}.toml").write_text(_sidecar(folder, stem, period))
-    shutil.copy(REALDATA / "emps" / "DATA_EMPS.mat", raw)
+    (raw / "DATA_EMPS.mat").write_bytes(b"MATLAB 5.0 MAT-file")    # a benchmark's data file, not a capture
     before = snapshot(raw)
     report = run_pipeline(raw, workspace.processed(), jobs=1, code=CODE)
     status = {r["recording"][:-4]: r["status"] for r in report.ran}

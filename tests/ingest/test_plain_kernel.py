@@ -62,7 +62,7 @@ def _kernel(data: bytes, split_min_bytes: int):
     return lay, read_int_rows(memoryview(data)[lay.body_start:], lay.width, lay.layout["t_raw"], split_min_bytes)
 
 
-@settings(max_examples=400, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(st.lists(st.one_of(row.map(lambda r: format_line(r, dict(zip(["t_raw", "counts", "adc", "dir"], range(4))), 4)),
                           near_miss), min_size=1, max_size=30),
        st.booleans(), st.sampled_from(["\n", "\r\n"]), st.sampled_from([0, 1 << 30]))
@@ -193,7 +193,7 @@ def _same_bits(a, b) -> None:
         assert x.dtype == y.dtype and x.tobytes() == y.tobytes(), c
 
 
-@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(st.lists(row, min_size=1, max_size=40), edits, rigs, st.booleans(), st.sampled_from(["\n", "\r\n"]),
        st.booleans(), st.sampled_from([0, 1 << 30]))
 def test_signal_rows_give_the_general_paths_tables_and_report_or_decline(rows, changes, cfg, header, eol, sort,

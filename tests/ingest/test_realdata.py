@@ -1,4 +1,4 @@
-"""The real captures in shared/realdata, each with a [columns] TOML, ingest with their defects reported."""
+"""The real captures in tests/data/realdata, each with a [columns] TOML, ingest with their defects reported."""
 
 from __future__ import annotations
 
@@ -11,15 +11,7 @@ from pipeline.errors import IngestError
 from pipeline.ingest.stage import ingest_recording
 from tests.ingest.helpers import config_from_toml
 
-def _realdata() -> Path:
-    """shared/ sits beside the checkout (CI clones main next to it); /work/shared on a developer's machine."""
-    for root in (Path(__file__).resolve().parents[2].parent / "shared", Path("/work/shared")):
-        if (root / "realdata").is_dir():
-            return root / "realdata"
-    raise FileNotFoundError("shared/realdata not found beside the checkout nor at /work/shared")
-
-
-REAL = _realdata()
+REAL = Path(__file__).resolve().parents[1] / "data" / "realdata"     # licences and sources: its README.md
 AKAFAEL = REAL / "akafael__discrete-servo-control"
 MOUSE = REAL / "opatiny__micromouse"
 AKAFAEL_COLUMNS = '[columns]\nt_ms = "time(ms)"\ncounts = "enconder(steps)"\nadc = ""\ndir = ""\n'

@@ -22,7 +22,7 @@ piece = st.one_of(st.binary(min_size=0, max_size=2 * MOVE + 5),
                   st.integers(MOVE - 1, MOVE + 1).flatmap(lambda k: st.binary(min_size=k, max_size=k)))
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=80, deadline=None)
 @given(st.integers(0, 40), st.integers(1, 3), st.data())
 def test_join_records_is_arrows_join(n, fields, data):
     head_bytes = data.draw(st.sampled_from([1, 31, MOVE, MOVE + 3]))

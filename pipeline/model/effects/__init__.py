@@ -1,4 +1,4 @@
-"""The catalogue of named effects (shared/MODEL.md): one module per effect in this package.
+"""The catalogue of named effects (docs/MODEL.md): one module per effect in this package.
 
 Every module here defines one ``Effect`` subclass (``base.py`` says what it
 declares); importing the package imports them all, so a new effect is a new
