@@ -8,7 +8,23 @@ exits non-zero; anything else escaping is a bug in pdr, not in the input.
 
 from __future__ import annotations
 
+import unicodedata
 from pathlib import Path
+
+_UNSHOWN = ("Cc", "Cf", "Zl", "Zp")     # control, format (bidi overrides), line and paragraph separators
+
+
+def unshown(ch: str) -> bool:
+    return unicodedata.category(ch) in _UNSHOWN
+
+
+def printable(text: str | Path) -> str:
+    """``text`` safe on one terminal line: bytes that are not UTF-8 as ``\\xff``, control and format
+    characters (escape codes, newlines, tabs, bidi overrides) as ``\\x1b``, ``\\n``, ``\\u202e``."""
+    text = str(text).encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+    if not any(unshown(ch) for ch in text):
+        return text
+    return "".join(ch.encode("unicode_escape").decode("ascii") if unshown(ch) else ch for ch in text)
 
 
 class PdrError(Exception):
@@ -27,7 +43,7 @@ class PdrError(Exception):
         if key:
             where.append(f"key '{key}'")
         self.detail = message
-        from pipeline.names import printable        # a name's escape codes or newline never reach the terminal
+        # a name's escape codes or newline never reach the terminal
         super().__init__(printable((", ".join(where) + ": " if where else "") + message))
 
 
@@ -54,7 +70,6 @@ def describe_failure(err: BaseException, folder: str | Path | None = None) -> st
     folder being written has less than ``LOW_SPACE_BYTES`` free, that is what the
     line says, naming the folder.
     """
-    from pipeline.names import printable
 
     return str(err) if isinstance(err, PdrError) else printable(_described(err, folder))
 

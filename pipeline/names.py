@@ -19,7 +19,7 @@ import re
 import unicodedata
 from pathlib import Path
 
-from pipeline.errors import PdrError
+from pipeline.errors import PdrError, printable, unshown
 
 RULE = ("a recording name is 1 to 200 bytes of UTF-8, does not start with '.', and holds no control "
         "character, no '%' and no path separator")
@@ -31,22 +31,6 @@ SEGMENT_SUFFIX = re.compile(r"-seg[0-9]+$")
 # A run's longest file name is ".<run>.mcap.<pid>.<n>.tmp" (an atomic write's temporary): with up to
 # 40 bytes for the rest and "-segNNNN", a stem of 200 bytes stays within the usual 255-byte limit.
 MAX_STEM_BYTES = 200
-_UNSHOWN = ("Cc", "Cf", "Zl", "Zp")     # control, format (bidi overrides), line and paragraph separators
-
-
-def _unshown(ch: str) -> bool:
-    return unicodedata.category(ch) in _UNSHOWN
-
-
-def printable(text: str | Path) -> str:
-    """``text`` safe on one terminal line: bytes that are not UTF-8 as ``\\xff``, control and format
-    characters (escape codes, newlines, tabs, bidi overrides) as ``\\x1b``, ``\\n``, ``\\u202e``."""
-    text = str(text).encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
-    if not any(_unshown(ch) for ch in text):
-        return text
-    return "".join(ch.encode("unicode_escape").decode("ascii") if _unshown(ch) else ch for ch in text)
-
-
 def name_problem(stem: str) -> str | None:
     """What is wrong with ``stem`` as a recording name (the rule above, in words), or None."""
     try:
@@ -64,7 +48,7 @@ def name_problem(stem: str) -> str | None:
     if stem.casefold() in RESERVED_NAMES:
         return (f"'{stem}' is reserved for pdr's own entries in processed/ ({', '.join(RESERVED_NAMES)}); "
                 f"rename the recording")
-    bad = next((ch for ch in stem if _unshown(ch)), None)
+    bad = next((ch for ch in stem if unshown(ch)), None)
     if bad is not None:
         return (f"the name holds the control character {bad.encode('unicode_escape').decode('ascii')}; "
                 f"rename it ({RULE})")

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 from pipeline.rig.recording import RigSetup, make_recording
-from pipeline.run.runner import CHUNK_MAX, make_pool
+from pipeline.run.pool import CHUNK_MAX, make_pool
 from pipeline.run.stages import process_chunk
 from pipeline.run.stamp import stamp_for
 from tests.cluster.helpers import CODE
