@@ -60,18 +60,25 @@ def plant_loop(cosim: Path, elf: Path, uart_out: Path, cfg) -> None:
     edges_per_rad = cfg.encoder.counts_per_rev / (2 * math.pi)
     mv_per_a = 1000 * cfg.current_sensor.sensitivity_v_per_a
     x = np.zeros(3)                                          # current, omega, delta: at rest
-    proc = subprocess.Popen([str(cosim), str(elf), str(SIMULATED_S), str(QUANTUM_S * 1e6), str(uart_out)],
-                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, bufsize=0)
+    # its own stderr file: inheriting pytest's captured stderr made the harness exit at once
+    errors = uart_out.with_name("cosim.stderr")
+    with errors.open("wb") as err:
+        proc = subprocess.Popen([str(cosim), str(elf), str(SIMULATED_S), str(QUANTUM_S * 1e6), str(uart_out)],
+                                stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=err, bufsize=0)
     fin, fout = proc.stdout.fileno(), proc.stdin.fileno()
     try:
         while command := os.read(fin, 1):
             count = math.floor(x[2] / spec.params.R * edges_per_rad)
-            os.write(fout, struct.pack("<ii", count, round(2500 + mv_per_a * x[0])))
+            try:
+                os.write(fout, struct.pack("<ii", count, round(2500 + mv_per_a * x[0])))
+            except BrokenPipeError:      # the harness ended early: its status and stderr say why, below
+                break
             x = phi @ x + gamma * (struct.unpack("b", command)[0] * spec.v_drive)
     finally:
         proc.stdin.close()
         proc.stdout.close()
-        assert proc.wait(timeout=30) == 0
+        rc = proc.wait(timeout=30)
+        assert rc == 0, (rc, errors.read_bytes()[-3000:])
 
 
 @pytest.fixture(scope="module")
