@@ -3,6 +3,7 @@ cache directory, a checkout whose kernels differ (a sibling a kernel calls inclu
 
 from __future__ import annotations
 
+import pytest
 import json
 import os
 import subprocess
@@ -53,6 +54,7 @@ def test_the_cache_is_under_the_users_cache_directory():
     assert os.environ["NUMBA_CACHE_LOCATOR_CLASSES"] == LOCATORS          # set by importing pipeline
 
 
+@pytest.mark.long
 def test_a_second_checkout_loads_the_first_ones_kernels_and_a_changed_one_compiles_its_own(tmp_path):
     cache = tmp_path / "cache"
     assert _run(_checkout(tmp_path / "a"), cache) == (7, False)              # compiled

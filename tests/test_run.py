@@ -94,6 +94,7 @@ def test_run_validates_every_recording_and_isolates_a_bad_one(recordings, tmp_pa
     assert list(pd.read_csv(processed / "summary.csv")["run"]) == ["clean"]
 
 
+@pytest.mark.long
 @pytest.mark.slow
 def test_two_concurrent_runs_leave_processed_consistent(recordings, tmp_path):
     processed = tmp_path / "processed"

@@ -14,6 +14,7 @@ def test_forkserver_where_the_platform_has_it():
     assert start_method() == ("forkserver" if "forkserver" in multiprocessing.get_all_start_methods() else "spawn")
 
 
+@pytest.mark.long
 @pytest.mark.slow
 def test_the_pool_under_spawn_gives_the_single_process_outputs(workspace):
     for seed in (0, 1):

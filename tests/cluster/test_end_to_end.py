@@ -60,6 +60,7 @@ def dask_cluster(tmp_path):
                 p.wait()
 
 
+@pytest.mark.long
 def test_pdr_run_on_a_cluster_with_a_worker_killed_matches_a_local_run(dask_cluster, tmp_path):
     from distributed import Client
 

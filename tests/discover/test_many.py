@@ -39,6 +39,7 @@ def make_b_rig(raw: Path, count: int, first_seed: int = 300) -> list[Path]:
     return out
 
 
+@pytest.mark.long
 @pytest.mark.slow
 def test_discover_many_pools_one_rig_and_reports_a_bad_recording(tmp_path):
     raw = tmp_path / "raw"

@@ -31,7 +31,7 @@ SIMULATED_S = 11.0
 QUANTUM_S = 200e-6
 
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.long]
 
 
 @pytest.fixture(scope="module")

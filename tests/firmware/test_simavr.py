@@ -18,6 +18,8 @@ import pytest
 
 from tests.firmware import sketch
 
+pytestmark = pytest.mark.long      # simavr runs the firmware ~8 s wall: make test-all and CI
+
 PDR = str(Path(sys.executable).parent / "pdr")
 WALL_S = 8.0
 _COLOUR = re.compile(rb"\x1b\[[0-9;]*m")

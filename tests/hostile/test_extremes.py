@@ -110,6 +110,7 @@ def _run_glitched(workspace, data: bytes) -> tuple:
             json.loads((processed / "glitch" / "validation.json").read_text()), json.loads(found.stdout))
 
 
+@pytest.mark.long
 def test_one_timestamp_near_the_32_bit_wrap_is_quarantined_not_a_wrap(workspace):
     data = _time_shifted(good_csv(0), 60, 4294967000, only_one=True)
     report, validation, found = _run_glitched(workspace, data)
@@ -119,6 +120,7 @@ def test_one_timestamp_near_the_32_bit_wrap_is_quarantined_not_a_wrap(workspace)
     assert validation["n_samples"] == len(rows(data)[1]) - 1 and "left_out" not in found
 
 
+@pytest.mark.long
 def test_a_4_2e9_ms_gap_is_a_gap_for_validate_and_discover(workspace):
     data = _time_shifted(good_csv(0), 60, 4_200_000_000, only_one=False)
     report, validation, found = _run_glitched(workspace, data)

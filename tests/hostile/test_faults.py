@@ -94,6 +94,7 @@ def _recovers(workspace, raw: Path, processed: Path) -> None:
     assert not list(processed.rglob(".*.tmp"))
 
 
+@pytest.mark.long
 @pytest.mark.slow
 def test_kill_9_of_the_main_process_leaves_no_process_and_the_next_run_recovers(workspace):
     raw = _raw_with_goods(workspace)

@@ -218,6 +218,7 @@ def test_validate_with_a_constant_current_writes_its_rerun_file(tmp_path):
 AKAFAEL_TOML = '[columns]\nt_ms = "time(ms)"\ncounts = "enconder(steps)"\nadc = ""\ndir = ""\n'
 
 
+@pytest.mark.long
 def test_discover_on_a_stuck_timer_writes_its_report(tmp_path):
     """Regression: the real capture whose timer is stuck at 0 ended in a ValueError in discover/report.py
     (no localisation table to draw)."""

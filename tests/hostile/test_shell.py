@@ -67,6 +67,7 @@ def _no_torn_or_temporary_file(processed: Path) -> None:
     (signal.SIGTERM, False, None),                # a service manager or `timeout`
     (signal.SIGTERM, True, None),
 ])
+@pytest.mark.long
 def test_a_stop_during_run_j2_is_one_line_and_keeps_every_finished_run_whole(workspace, sig, to_group, delay_s):
     raw = _raw_with_goods(workspace)
     processed = workspace.processed()
@@ -95,6 +96,7 @@ def test_a_stop_during_run_j2_is_one_line_and_keeps_every_finished_run_whole(wor
         assert proc.returncode == status and finished == [], (proc.returncode, finished)
 
 
+@pytest.mark.long
 @pytest.mark.slow
 @pytest.mark.parametrize("closed", ["2>&-", ">&-", "<&- 2>&-"])
 def test_a_run_with_a_closed_output_stream_processes_everything_and_says_so_by_its_status(workspace, closed):
@@ -130,6 +132,7 @@ def _home_with_rerun_analytics_on(home: Path) -> Path:
     return data
 
 
+@pytest.mark.long
 @pytest.mark.slow
 def test_a_run_opens_no_socket_beyond_loopback_and_leaves_rerun_analytics_alone(workspace, tmp_path):
     """Every process of the run (pdr, the forkserver, the workers, the rerun CLI they start) traced by
@@ -155,6 +158,7 @@ def test_a_run_opens_no_socket_beyond_loopback_and_leaves_rerun_analytics_alone(
         workspace.assert_as_alone(processed, seed)
 
 
+@pytest.mark.long
 @pytest.mark.slow
 def test_kill_int_of_a_run_started_in_the_background_by_a_script_is_heard(workspace):
     """``pdr run &`` in a shell without job control starts with SIGINT ignored; the stop must still work."""

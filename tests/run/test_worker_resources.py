@@ -50,6 +50,7 @@ def _process_in_chunks(csvs: list[Path], processed: Path) -> tuple[list[str], li
     return statuses, held
 
 
+@pytest.mark.long
 @pytest.mark.slow
 def test_a_worker_holds_as_much_after_hundreds_of_recordings_as_after_its_first(tmp_path):
     raw = tmp_path / "raw"

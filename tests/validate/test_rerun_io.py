@@ -45,6 +45,7 @@ def test_a_stream_whose_logging_fails_is_ended_too(tmp_path):
     assert psutil.Process().num_threads() <= before
 
 
+@pytest.mark.long
 @pytest.mark.slow
 def test_a_live_stream_that_cannot_flush_fails_no_file(tmp_path):
     """``pdr record --connect URL`` whose viewer cannot be reached: its stream's flush fails, and the

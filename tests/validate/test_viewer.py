@@ -49,7 +49,7 @@ SCREENSHOT_DIR_ENV = "PDR_VIEWER_SCREENSHOT_DIR"   # keep the screenshots somewh
 TOP_DOWN = {"kind": "Orbital", "position": [0.0, 0.0, 6.0], "look_target": [0.0, 0.0, 0.0], "eye_up": [0.0, 1.0, 0.0]}
 
 LAVAPIPE = glob.glob("/usr/share/vulkan/icd.d/lvp_icd.*.json")
-pytestmark = [pytest.mark.viewer, pytest.mark.slow,
+pytestmark = [pytest.mark.viewer, pytest.mark.slow, pytest.mark.long,
               pytest.mark.skipif(not LAVAPIPE, reason="no software Vulkan driver (lavapipe) for the headless "
                                  "viewer: apt-get install mesa-vulkan-drivers (.ci/run does)")]
 
