@@ -21,10 +21,6 @@ from pipeline.model.effects import CATALOGUE, Effect
 # data's own integration is never that exact), so an angle gain must be a whole noise variance.
 MIN_GAIN_FLOORS = {"theta": 1.0, "current": 0.25}
 MIN_GAIN_CHI2 = {"current": 25.0}
-# An angle gain under a whole noise variance is evidence too once it is many sigmas over the recording
-# (a 0.03 rad backlash beside a rack inertia and a load torque, the model otherwise at the angle's floor:
-# 0.13 of a variance per sample, 316 in chi-square over 2,429 samples); the other checks still apply.
-SMALL_GAIN_CHI2 = 100.0
 # The current's floor is itself an estimate (``noise.signal_noise``): over n samples its relative
 # variance is ~3/n (measured on quantised noise, 150-2000 samples), so that many noise variances of
 # the current's "structure" may be the floor's own error, which no effect removes; a held-out share is
@@ -33,7 +29,6 @@ FLOOR_RELATIVE_VARIANCE = 3.0
 FLOOR_SIGMAS = 2.0
 MIN_HELDOUT_SHARE = 0.5      # share of held-out structure removed
 MAX_WORSENING_FLOORS = 2.0   # no signal may get worse than this on held-out data (a stacked partner may cost a little)
-MAX_WORSENING_SHARE = 0.1    # ... or than this share of its own structure (a start moved with a sensor offset)
 MAX_DELTA_BIC = -10.0        # "strong" evidence on Kass & Raftery's scale
 SIGNATURE_SHRINK = 0.5       # the motivating pattern must at least halve ...
 SIGNATURE_NOISE = 3.0        # ... or fall to this many noise variances
@@ -43,7 +38,6 @@ STRUCTURE_FLOORS = 25.0      # residual MSE above this many noise variances is s
 # from rest readings) must stand this many of that zero's standard errors clear of it, or the zero's
 # own error explains it as well (by chance a zero is 3 standard errors off once in ~370 recordings)
 ZERO_SIGMAS = 3.0
-EDGE_TOLERANCE = 1e-3        # of a scan's range: a value this near its end is at the edge (Brent stops within 5e-4)
 MIN_SIZE_SHARE = 0.1         # smallest nameable effect, as a share of its typical size (MODEL.md's catalogue)
 
 
@@ -156,8 +150,7 @@ def assess(ev: Evaluator, meas: Measurement, effects: tuple[Effect, ...], name: 
     nll_before = ev.nll(ev.sim(effects))
     delta_bic = 2.0 * (fit.nll - nll_before) + 1.0 * np.log(n_obs)
     share, gains, worse = heldout_share(fit, ev.floor, meas.n)
-    ex_b, ex_a = heldout_excess(fit, ev.floor)
-    left, before = (sum(max(x, 0.0) for x in ex.values()) for ex in (ex_a, ex_b))
+    left = sum(max(x, 0.0) for x in heldout_excess(fit, ev.floor)[1].values())
     sig_b = signature_energy(name, meas, ev, effects)
     sig_a = signature_energy(name, meas, ev, trial)
     a = Assessment(fit=fit, round=round_, delta_bic=float(delta_bic), heldout_share=share,
@@ -165,13 +158,9 @@ def assess(ev: Evaluator, meas: Measurement, effects: tuple[Effect, ...], name: 
                    structure_left=float(left),
                    signature_before=sig_b, signature_after=sig_a)
     a.checks = {
-        "improvement_vs_noise": any(g >= min_gain(s, meas.n) or g * meas.n >= SMALL_GAIN_CHI2
-                                    for s, g in gains.items()),
-        # of a model already within STRUCTURE_FLOORS no share is asked: what it leaves may be the
-        # floor's own error (a 0.05 rad backlash beside softer springs removed 0.5 of 2.1 noise variances
-        # of angle structure, 650 in chi-square, where the true model leaves 1.6)
-        "heldout": ((a.heldout_share >= MIN_HELDOUT_SHARE or before <= STRUCTURE_FLOORS)
-                    and not worsens(fit, ev.floor) and fit.heldout_nll_gain > 0),
+        "improvement_vs_noise": any(g >= min_gain(s, meas.n) for s, g in gains.items()),
+        "heldout": (a.heldout_share >= MIN_HELDOUT_SHARE and a.worst_worsening_floors <= MAX_WORSENING_FLOORS
+                    and fit.heldout_nll_gain > 0),
         "bic": a.delta_bic <= MAX_DELTA_BIC,
         "interval_excludes_null": fit.excludes_null and beyond_zero_error(fit, meas, ev.floor),
         # a candidate that removes most of the held-out structure has shown its pattern; its
@@ -181,15 +170,6 @@ def assess(ev: Evaluator, meas: Measurement, effects: tuple[Effect, ...], name: 
         "size": nameable_size(fit.name, fit.value),
     }
     return a
-
-
-def worsens(fit: Fit, floor: dict[str, float]) -> bool:
-    """Whether some signal gets worse on held-out data by more than ``MAX_WORSENING_FLOORS`` noise
-    variances and ``MAX_WORSENING_SHARE`` of the structure it had: a sensor offset moves the start
-    the first seconds give, and with it an angle still far from its floor (after a reset, 146 noise
-    variances) by a few, where it removes 2.5 of the current's."""
-    ex_b, ex_a = heldout_excess(fit, floor)
-    return any(ex_a[s] - ex_b[s] > max(MAX_WORSENING_FLOORS, MAX_WORSENING_SHARE * ex_b[s]) for s in floor)
 
 
 def beyond_zero_error(fit: Fit, meas: Measurement, floor: dict[str, float]) -> bool:
@@ -205,21 +185,10 @@ def beyond_zero_error(fit: Fit, meas: Measurement, floor: dict[str, float]) -> b
     return abs(fit.value - p.absent) > ZERO_SIGMAS * float(np.sqrt(floor[p.zero_of] / rest))
 
 
-def at_scan_edge(fit: Fit) -> bool:
-    """Whether the candidate's value came out at the far end of its scan (either end, for a signed one),
-    where the likelihood was still rising: the effect stretched to mimic others, not sized by its own
-    shape.  Such a candidate goes after every one fitted inside its range (draw 195: a 0.3 s loop delay,
-    the scan's end, stood in for friction and softer springs, and hid them for the rest of the run)."""
-    p = fit.effect.PARAMS[0]
-    lo, hi = min(p.scan), max(p.scan)
-    tol = EDGE_TOLERANCE * (hi - lo)
-    return fit.value >= hi - tol or (p.signed and fit.value <= lo + tol)
-
-
-def adoption_rank(a: Assessment) -> tuple[bool, float]:
-    """The order a round (plain or thorough) adopts from among the candidates that pass: those fitted inside
-    their scan first (``at_scan_edge``), then by held-out likelihood gain."""
-    return at_scan_edge(a.fit), -a.fit.heldout_nll_gain
+def adoption_rank(a: Assessment) -> float:
+    """The order a round (plain or thorough) adopts from among the candidates that pass: by held-out
+    likelihood gain, largest first."""
+    return -a.fit.heldout_nll_gain
 
 
 def nameable_size(name: str, value: float) -> bool:

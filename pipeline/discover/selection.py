@@ -3,11 +3,10 @@
 A candidate is added only when all of these hold (issue 6, step 3):
 
 1. noise:     on held-out cycles it removes at least ``min_gain`` noise variances of mean
-              squared error from some signal, or a gain many sigmas over the recording;
+              squared error from some signal (in the current: a many-sigma gain over the recording);
 2. held out:  fitted on half the cycles, it removes at least ``MIN_HELDOUT_SHARE``
               of the structure (MSE above the noise floor) on the other half,
-              without making any signal worse by more than ``MAX_WORSENING_FLOORS`` (or a
-              tenth of its structure);
+              without making any signal worse by more than ``MAX_WORSENING_FLOORS``;
 3. BIC:       2*delta(nll) + k*ln(n) <= ``MAX_DELTA_BIC`` on all samples;
 4. interval:  its ~95 % interval excludes the value at which it is absent (a sensor's zero read
               off the data: and stands three of that zero's standard errors clear of it);
@@ -56,20 +55,19 @@ from pipeline.model.effects import CATALOGUE, Effect
 # that would absorb a count of drift is refused by its size (MIN_SIZE_SHARE), not by this floor.
 NEAR_TIE = 2.0              # runner-up leaves at most twice the winner's held-out structure (+1 noise variance)
 MAX_EFFECTS = 3
-COUNTER_REFITS = 3          # after a reset: refits of the effects and the counter's offset, in turn, at the end
 # Discovery's work (``Evaluator.work``: its simulations, start estimates included, ~0.6 us of CPU a unit) is
 # bounded.  A round, a pair restart, each candidate of a round after the first, each of a thorough round and
 # each twin swap start only while a run of the rounds is within WORK_BUDGET, and all the runs on one recording
-# (from round one's two best, after resettled switches) within TOTAL_WORK_BUDGET (both ~6 s; 7 s where
-# Coulomb friction sticks often, its replays locating many events); a later run starts only with
+# (from round one's two best, after resettled switches) within TOTAL_WORK_BUDGET (~6 s and ~7 s); a later run
+# starts only with
 # LATER_RUN_WORK of that left (a round), the wide searches with WIDE_SEARCH_WORK (a pair restart or a
 # thorough round, each 2-4 M).  Counted, not timed: the same recording gets the same rounds, and so the
 # same answer, on a busy machine as on an idle one.
-WORK_BUDGET = 9_500_000
-TOTAL_WORK_BUDGET = 9_500_000
+WORK_BUDGET = 10_500_000
+TOTAL_WORK_BUDGET = 11_000_000
 LATER_RUN_WORK = 1_500_000
 WIDE_SEARCH_WORK = 3_000_000
-LATER_FULL_FITS = 4          # every candidate gets the full assessment in round 1; later rounds only the
+LATER_FULL_FITS = 3          # every candidate gets the full assessment in round 1; later rounds only the
                              # few that gain most in the coarse scan
 
 
@@ -278,8 +276,6 @@ def _forward(meas: Measurement, names: tuple[str, ...], found: tuple[Effect, ...
     ex_before = excess(ev, ())
     refine_start(ev, effects)
     ex_after = excess(ev, effects)
-    if not meas.angle_reference_known and effects:
-        effects, ex_after = _with_the_counter_refitted(ev, effects, ex_after)
     if unreadable := [e for e in effects if _zero_beside_structure(e, ex_after)]:
         effects = joint_fit(ev, tuple(e for e in effects if e not in unreadable)) if len(effects) > 1 else ()
         refine_start(ev, effects)
@@ -297,29 +293,6 @@ def _forward(meas: Measurement, names: tuple[str, ...], found: tuple[Effect, ...
                      command_after=ev.command_for(effects), meas=meas, stopped_for_time=stopped_for_time,
                      pruned=pruned, intervals=spans)
 
-
-
-def _with_the_counter_refitted(ev: Evaluator, effects: tuple[Effect, ...], ex_after: dict[str, float]
-                               ) -> tuple[tuple[Effect, ...], dict[str, float]]:
-    """After a reset: the effects refitted jointly under the counter's offset the final start refit
-    found, and the offset again under them, while structure is left and it shrinks.  The rounds fit
-    the effects under the offset the base model read, which its missing effects bend; a spring then
-    comes out 0.5 % soft, the offset 2 mrad off, and each fitted under the other is held there
-    (draw 7: 134 noise variances of angle structure; one refit of each: none)."""
-    for _ in range(COUNTER_REFITS):
-        if max(ex_after.values()) <= STRUCTURE_FLOORS:
-            break
-        held = ev.meas.held_offset
-        trial = joint_fit(ev, effects)
-        refine_start(ev, trial)
-        ex_trial = excess(ev, trial)
-        if sum(ex_trial.values()) >= sum(ex_after.values()):
-            if held is not None:
-                ev.meas.hold_offset(ev.meas.spec(effects), held)
-            refine_start(ev, effects)
-            return effects, excess(ev, effects)
-        effects, ex_after = trial, ex_trial
-    return effects, ex_after
 
 
 def _zero_beside_structure(effect: Effect, ex_after: dict[str, float]) -> bool:

@@ -205,8 +205,7 @@ def discovery_json(d: Discovery, recording: str) -> dict:
     if d.selection.stopped_for_time:
         out["stopped_for_time"] = ("the work budget was spent before the search ended: a further round, or a "
                                    "round's later candidates, were not tried (simulated samples, start estimates "
-                                   "included: about 6 CPU s for all runs on the recording, 7 s where friction "
-                                   "sticks often)")
+                                   "included: about 6 CPU s a run, 7 s for all runs on the recording)")
     if d.selection.failures:
         out["simulation_failures"] = len(d.selection.failures)
     return finite_or_none(out)

@@ -41,7 +41,7 @@ def thorough_round(ev: Evaluator, meas: Measurement, effects: tuple[Effect, ...]
         relaxed = (jointly_relaxed(ev, effects, name, scans[name])
                    if gains.get(name, 0.0) > 0 and ev.work <= budget else None)
         out.append(earlier[name] if relaxed is None else assess(ev, meas, effects, name, folds, round_, relaxed))
-    return sorted(out, key=lambda a: adoption_rank(a) if isinstance(a, Assessment) else (True, float("inf")))
+    return sorted(out, key=lambda a: adoption_rank(a) if isinstance(a, Assessment) else float("inf"))
 
 
 def jointly_relaxed(ev: Evaluator, base: tuple[Effect, ...], name: str, scanned: Scan) -> Scan | None:
