@@ -194,16 +194,6 @@ def test_rounds_that_leave_structure_are_run_again_from_round_ones_two_best(tmp_
                                                              zip(doc["candidates"], fates) if c["round"] == 1]
 
 
-def test_both_friction_twins_and_softer_springs_from_round_ones_two_best_together(tmp_path):
-    """Randomised draw 195 (seed 15): Coulomb and viscous friction beside springs 25 % soft, under 4x the
-    current noise.  Round one passes both frictions (each alone removes all the held-out structure) and
-    a 0.3 s loop delay, the end of its scan, standing in for them.  Adopted alone, either friction
-    comes out twice its size and hides the other; the delay took round one, and from the runner-up
-    the rounds ended on a backlash (Coulomb 43 % off, unexplained).  The frictions ranked before the
-    delay at the end of its scan, and the rounds again from both frictions together, open the springs."""
-    _named_right(*_randomised(195, tmp_path))
-
-
 def test_an_adopted_effect_is_tried_against_candidates_an_earlier_round_passed(tmp_path):
     """Randomised draw 37 (seed 15): a voltage drop beside stiffer springs.  Round one took the springs,
     round two a small viscous friction; the voltage drop, which passed round one, was not among the
