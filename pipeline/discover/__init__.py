@@ -17,7 +17,8 @@ The workflow (issue 6), module by module:
   held-out folds' spread), and held-out scores (fit on half the cycles, score the other half).
 - ``selection``: the evidence rules (improvement against the noise, held out, BIC, interval
   excluding "no effect", the motivating residual pattern removed), stacking while evidence
-  holds, near ties, and the verdict ``explained`` / ``none`` / ``unexplained``.
+  holds, near ties, and the verdict ``explained`` / ``none`` / ``unexplained``; every threshold they
+  decide by is a field of ``policy.DiscoveryPolicy``, passed to ``select(meas, policy=...)``.
 - ``stage``: the pure ``discover(kinematics, config, name)`` and the JSON of INTERFACE.md; MSEs
   before/after are computed by validation's own code (``simulate_both`` + ``signal_errors``).
 - ``report``: JSON, ``[effects]`` snippet, Markdown with PNGs, Rerun recording.

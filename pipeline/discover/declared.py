@@ -8,18 +8,18 @@ from dataclasses import replace
 from scipy.optimize import minimize_scalar
 
 from pipeline.discover.candidates import Evaluator, make, parameter_of, value_of
-from pipeline.discover.evidence import STRUCTURE_FLOORS
 from pipeline.discover.measurement import Measurement
+from pipeline.discover.policy import DiscoveryPolicy
 from pipeline.model.effects import CATALOGUE
 
 
-def check_declared(meas: Measurement, floor: dict[str, float]) -> list[dict]:
+def check_declared(meas: Measurement, floor: dict[str, float], policy: DiscoveryPolicy) -> list[dict]:
     """When nothing can be added, is something the rig declares too large?
 
     Effects only add, so an over-declared effect (a TOML loop delay the rig does not have,
     a friction smaller than written) cannot be "found".  Each declared effect, and the
     [model] friction b, is refitted between none and its declared value; the ones that
-    then leave the residual at the noise are reported (``pdr discover`` never edits them).
+    then leave no structure (``policy.structure_floors``) are reported (``pdr discover`` never edits them).
     """
     cfg = meas.config
     declared: list[tuple[str, str, float]] = [(e.name, parameter_of(e.name), value_of(e)) for e in cfg.effects]
@@ -43,7 +43,7 @@ def check_declared(meas: Measurement, floor: dict[str, float]) -> list[dict]:
         trial = replace(meas, config=with_value(float(res.x)))
         ev = Evaluator(trial, floor)
         left = {s: m / floor[s] - 1.0 for s, m in ev.mse(trial.replay(trial.spec())).items()}
-        if max(left.values()) <= STRUCTURE_FLOORS:
+        if max(left.values()) <= policy.structure_floors:
             out.append({"name": name, "parameter": param, "declared": value, "fitted": float(res.x),
                         "structure_left": left})
     return out

@@ -10,41 +10,15 @@ import numpy as np
 
 from pipeline.discover.candidates import Evaluator, Fit, Scan, fit_candidate, parameter_of
 from pipeline.discover.measurement import Measurement
+from pipeline.discover.policy import DiscoveryPolicy
 from pipeline.discover.residuals import events, residuals
 from pipeline.model.effects import CATALOGUE, Effect
 
-# Held-out MSE a candidate must remove from some signal, in that signal's noise variances.  The
-# current's floor is the sensor's own white noise, which the right model reaches: a gain there is
-# evidence once it is many sigmas over the recording, ``MIN_GAIN_CHI2`` in chi-square over its samples
-# (a sensor offset of a third of a noise sigma over 1,000 samples is ~100), and at most a quarter noise
-# variance however short the recording.  The angle's floor counts only quantisation and the clock (the
-# data's own integration is never that exact), so an angle gain must be a whole noise variance.
-MIN_GAIN_FLOORS = {"theta": 1.0, "current": 0.25}
-MIN_GAIN_CHI2 = {"current": 25.0}
-# An angle gain under a whole noise variance is evidence too once it is many sigmas over the recording
-# (a 0.03 rad backlash beside a rack inertia and a load torque, the model otherwise at the angle's floor:
-# 0.13 of a variance per sample, 316 in chi-square over 2,429 samples); the other checks still apply.
-SMALL_GAIN_CHI2 = 100.0
 # The current's floor is itself an estimate (``noise.signal_noise``): over n samples its relative
 # variance is ~3/n (measured on quantised noise, 150-2000 samples), so that many noise variances of
 # the current's "structure" may be the floor's own error, which no effect removes; a held-out share is
-# taken of the structure beyond FLOOR_SIGMAS of it.
+# taken of the structure beyond ``DiscoveryPolicy.floor_sigmas`` of it.  A measured fact, not a threshold.
 FLOOR_RELATIVE_VARIANCE = 3.0
-FLOOR_SIGMAS = 2.0
-MIN_HELDOUT_SHARE = 0.5      # share of held-out structure removed
-MAX_WORSENING_FLOORS = 2.0   # no signal may get worse than this on held-out data (a stacked partner may cost a little)
-MAX_WORSENING_SHARE = 0.1    # ... or than this share of its own structure (a start moved with a sensor offset)
-MAX_DELTA_BIC = -10.0        # "strong" evidence on Kass & Raftery's scale
-SIGNATURE_SHRINK = 0.5       # the motivating pattern must at least halve ...
-SIGNATURE_NOISE = 3.0        # ... or fall to this many noise variances
-DOMINANT_SHARE = 0.8         # ... or the candidate remove this share of all held-out structure
-STRUCTURE_FLOORS = 25.0      # residual MSE above this many noise variances is structure
-# An effect whose value is also a zero ingest read off the data (``Param.zero_of``: a current zero
-# from rest readings) must stand this many of that zero's standard errors clear of it, or the zero's
-# own error explains it as well (by chance a zero is 3 standard errors off once in ~370 recordings)
-ZERO_SIGMAS = 3.0
-EDGE_TOLERANCE = 1e-3        # of a scan's range: a value this near its end is at the edge (Brent stops within 5e-4)
-MIN_SIZE_SHARE = 0.1         # smallest nameable effect, as a share of its typical size (MODEL.md's catalogue)
 
 
 @dataclass
@@ -56,6 +30,7 @@ class Assessment:
     delta_bic: float
     heldout_share: float                  # best share of held-out structure removed over the signals
     heldout_gain_floors: float            # best held-out MSE removed, in noise variances
+    worst_worsening_floors: float         # the most any signal's held-out MSE grew, in noise variances
     structure_left: float                 # held-out MSE above the noise left after it, in noise variances
     signature_before: float
     signature_after: float
@@ -106,11 +81,12 @@ class Screened:
 
 # ------------------------------------------------------------ signatures per effect
 
-def signature_energy(name: str, meas: Measurement, ev: Evaluator, effects: tuple[Effect, ...]) -> float:
+def signature_energy(name: str, meas: Measurement, ev: Evaluator, effects: tuple[Effect, ...],
+                     policy: DiscoveryPolicy) -> float:
     """Mean energy of the residual pattern that points at ``name``, in noise variances (~1 for
     pure noise): where the effect declares a local fingerprint (``Effect.SIGNATURE``), the
     residual there (averaged over the signals, so pure noise is ~1 with the current beside the angle
-    too, as ``SIGNATURE_NOISE`` assumes) -- right after each switch, near zero velocity, right after each angle zero
+    too, as ``signature_noise`` assumes) -- right after each switch, near zero velocity, right after each angle zero
     crossing, the bias of the current alone; an effect acting everywhere has no local window,
     so the whole residual.
 
@@ -123,13 +99,13 @@ def signature_energy(name: str, meas: Measurement, ev: Evaluator, effects: tuple
         r = res.get("current")
         return float(np.mean(r)) ** 2 / ev.floor["current"] * len(r) if r is not None else 0.0
     if where == "after_switch":
-        m = _after(meas.n, events(meas).switches, 3)
+        m = _after(meas.n, events(meas).switches, policy.signature_window)
     elif where == "after_zero_crossing":
-        m = _after(meas.n, events(meas).zero_crossings, 3)
+        m = _after(meas.n, events(meas).zero_crossings, policy.signature_window)
     elif where == "low_speed":
         w = sim.omega
         wmax = float(np.nanmax(np.abs(w))) if np.any(np.isfinite(w)) else 1.0
-        m = np.abs(w) < 0.15 * wmax
+        m = np.abs(w) < policy.low_speed_share * wmax
     else:
         m = np.ones(meas.n, dtype=bool)
     if not m.any():
@@ -148,51 +124,37 @@ def _after(n: int, starts: np.ndarray, width: int) -> np.ndarray:
 
 def assess(ev: Evaluator, meas: Measurement, effects: tuple[Effect, ...], name: str,
            folds: tuple[np.ndarray, np.ndarray], round_: int,
-           scanned: Scan | None = None) -> Assessment:
+           policy: DiscoveryPolicy, scanned: Scan | None = None) -> Assessment:
     fit = fit_candidate(ev, effects, name, folds, scanned=scanned)
     trial = fit.effects
     n_obs = meas.n * len(meas.signals)
     nll_before = ev.nll(ev.sim(effects))
     delta_bic = 2.0 * (fit.nll - nll_before) + 1.0 * np.log(n_obs)
-    share, gains = heldout_share(fit, ev.floor, meas.n)
-    ex_b, ex_a = heldout_excess(fit, ev.floor)
-    left, before = (sum(max(x, 0.0) for x in ex.values()) for ex in (ex_a, ex_b))
-    sig_b = signature_energy(name, meas, ev, effects)
-    sig_a = signature_energy(name, meas, ev, trial)
+    share, gains, worse = heldout_share(fit, ev.floor, meas.n, policy)
+    left = sum(max(x, 0.0) for x in heldout_excess(fit, ev.floor)[1].values())
+    sig_b = signature_energy(name, meas, ev, effects, policy)
+    sig_a = signature_energy(name, meas, ev, trial, policy)
     a = Assessment(fit=fit, round=round_, delta_bic=float(delta_bic), heldout_share=share,
-                   heldout_gain_floors=max(gains.values()),
+                   heldout_gain_floors=max(gains.values()), worst_worsening_floors=worse,
                    structure_left=float(left),
                    signature_before=sig_b, signature_after=sig_a)
     a.checks = {
-        "improvement_vs_noise": any(g >= min_gain(s, meas.n) or g * meas.n >= SMALL_GAIN_CHI2
-                                    for s, g in gains.items()),
-        # of a model already within STRUCTURE_FLOORS no share is asked: what it leaves may be the
-        # floor's own error (a 0.05 rad backlash beside softer springs removed 0.5 of 2.1 noise variances
-        # of angle structure, 650 in chi-square, where the true model leaves 1.6)
-        "heldout": ((a.heldout_share >= MIN_HELDOUT_SHARE or before <= STRUCTURE_FLOORS)
-                    and not worsens(fit, ev.floor) and fit.heldout_nll_gain > 0),
-        "bic": a.delta_bic <= MAX_DELTA_BIC,
-        "interval_excludes_null": fit.excludes_null and beyond_zero_error(fit, meas, ev.floor),
+        "improvement_vs_noise": any(g >= min_gain(s, meas.n, policy) for s, g in gains.items()),
+        "heldout": (a.heldout_share >= policy.min_heldout_share
+                    and a.worst_worsening_floors <= policy.max_worsening_floors and fit.heldout_nll_gain > 0),
+        "bic": a.delta_bic <= policy.max_delta_bic,
+        "interval_excludes_null": fit.excludes_null and beyond_zero_error(fit, meas, ev.floor, policy),
         # a candidate that removes most of the held-out structure has shown its pattern; its
         # local window may then hold what another, stacked effect leaves behind
-        "signature_removed": (sig_a <= SIGNATURE_SHRINK * sig_b or sig_a <= SIGNATURE_NOISE
-                              or share >= DOMINANT_SHARE),
-        "size": nameable_size(fit.name, fit.value),
+        "signature_removed": (sig_a <= policy.signature_shrink * sig_b or sig_a <= policy.signature_noise
+                              or share >= policy.dominant_share),
+        "size": nameable_size(fit.name, fit.value, policy),
     }
     return a
 
 
-def worsens(fit: Fit, floor: dict[str, float]) -> bool:
-    """Whether some signal gets worse on held-out data by more than ``MAX_WORSENING_FLOORS`` noise
-    variances and ``MAX_WORSENING_SHARE`` of the structure it had: a sensor offset moves the start
-    the first seconds give, and with it an angle still far from its floor (after a reset, 146 noise
-    variances) by a few, where it removes 2.5 of the current's."""
-    ex_b, ex_a = heldout_excess(fit, floor)
-    return any(ex_a[s] - ex_b[s] > max(MAX_WORSENING_FLOORS, MAX_WORSENING_SHARE * ex_b[s]) for s in floor)
-
-
-def beyond_zero_error(fit: Fit, meas: Measurement, floor: dict[str, float]) -> bool:
-    """Whether the candidate stands ``ZERO_SIGMAS`` clear of the error of a zero read off the data
+def beyond_zero_error(fit: Fit, meas: Measurement, floor: dict[str, float], policy: DiscoveryPolicy) -> bool:
+    """Whether the candidate stands ``policy.zero_sigmas`` clear of the error of a zero read off the data
     that its value is confounded with (True when there is no such zero).  That zero is a mean of
     rest readings, whose error is the signal's noise floor over their number: the floor is read off
     the whole recording, the rest readings' own spread off a few (11 of them read it 28 % low on a
@@ -201,43 +163,34 @@ def beyond_zero_error(fit: Fit, meas: Measurement, floor: dict[str, float]) -> b
     rest = meas.zero_samples.get(p.zero_of, 0)
     if not rest or p.zero_of not in floor:
         return True
-    return abs(fit.value - p.absent) > ZERO_SIGMAS * float(np.sqrt(floor[p.zero_of] / rest))
+    return abs(fit.value - p.absent) > policy.zero_sigmas * float(np.sqrt(floor[p.zero_of] / rest))
 
 
-def at_scan_edge(fit: Fit) -> bool:
-    """Whether the candidate's value came out at the far end of its scan (either end, for a signed one),
-    where the likelihood was still rising: the effect stretched to mimic others, not sized by its own
-    shape.  Such a candidate goes after every one fitted inside its range (draw 195: a 0.3 s loop delay,
-    the scan's end, stood in for friction and softer springs, and hid them for the rest of the run)."""
-    p = fit.effect.PARAMS[0]
-    lo, hi = min(p.scan), max(p.scan)
-    tol = EDGE_TOLERANCE * (hi - lo)
-    return fit.value >= hi - tol or (p.signed and fit.value <= lo + tol)
+def adoption_rank(a: Assessment) -> float:
+    """The order a round (plain or thorough) adopts from among the candidates that pass: by held-out
+    likelihood gain, largest first."""
+    return -a.fit.heldout_nll_gain
 
 
-def adoption_rank(a: Assessment) -> tuple[bool, float]:
-    """The order a round (plain or thorough) adopts from among the candidates that pass: those fitted inside
-    their scan first (``at_scan_edge``), then by held-out likelihood gain."""
-    return at_scan_edge(a.fit), -a.fit.heldout_nll_gain
-
-
-def nameable_size(name: str, value: float) -> bool:
-    """Whether ``value`` of the effect's first parameter is at least ``MIN_SIZE_SHARE`` of its typical size."""
+def nameable_size(name: str, value: float, policy: DiscoveryPolicy) -> bool:
+    """Whether ``value`` of the effect's first parameter is at least ``policy.min_size_share`` of its typical size."""
     p = CATALOGUE[name].PARAMS[0]
-    return abs(value - p.absent) >= MIN_SIZE_SHARE * abs(p.typical - p.absent)
+    return abs(value - p.absent) >= policy.min_size_share * abs(p.typical - p.absent)
 
 
-def min_gain(signal: str, n: int) -> float:
-    """MSE, in noise variances, that ``signal`` must gain (or keep, to be structure) over ``n`` samples."""
-    chi2 = MIN_GAIN_CHI2.get(signal)
-    return MIN_GAIN_FLOORS[signal] if chi2 is None else min(MIN_GAIN_FLOORS[signal], chi2 / max(n, 1))
+def min_gain(signal: str, n: int, policy: DiscoveryPolicy) -> float:
+    """MSE, in noise variances, that ``signal`` must gain (or keep, to be structure) over ``n`` samples:
+    the current's by chi-square over the samples (its floor is white noise), the angle's a fixed share."""
+    if signal == "current":
+        return min(policy.current_min_gain, policy.current_min_gain_chi2 / max(n, 1))
+    return policy.theta_min_gain
 
 
-def floor_error(signal: str, n: int) -> float:
-    """Excess MSE, in noise variances, that the floor's own estimate may account for (``FLOOR_SIGMAS``)."""
-    if signal not in MIN_GAIN_CHI2:
+def floor_error(signal: str, n: int, policy: DiscoveryPolicy) -> float:
+    """Excess MSE, in noise variances, that the current's floor estimate may account for (``floor_sigmas``)."""
+    if signal != "current":
         return 0.0
-    return FLOOR_SIGMAS * float(np.sqrt(FLOOR_RELATIVE_VARIANCE / max(n, 1)))
+    return policy.floor_sigmas * float(np.sqrt(FLOOR_RELATIVE_VARIANCE / max(n, 1)))
 
 
 def heldout_excess(fit: Fit, floor: dict[str, float]) -> tuple[dict[str, float], dict[str, float]]:
@@ -246,8 +199,9 @@ def heldout_excess(fit: Fit, floor: dict[str, float]) -> tuple[dict[str, float],
             {s: fit.heldout_mse_after[s] / fl - 1.0 for s, fl in floor.items()})
 
 
-def heldout_share(fit: Fit, floor: dict[str, float], n: int) -> tuple[float, dict[str, float]]:
-    """(share of held-out structure removed, MSE gain per signal in noise variances).
+def heldout_share(fit: Fit, floor: dict[str, float], n: int,
+                  policy: DiscoveryPolicy) -> tuple[float, dict[str, float], float]:
+    """(share of held-out structure removed, MSE gain per signal in noise variances, worst worsening).
 
     Structure is MSE above the noise floor, in noise variances, in each signal
     that has enough of it to be worth removing (``min_gain`` over the ``n`` samples); the share
@@ -257,12 +211,12 @@ def heldout_share(fit: Fit, floor: dict[str, float], n: int) -> tuple[float, dic
     """
     ex_b, ex_a = heldout_excess(fit, floor)
     gains = {s: ex_b[s] - ex_a[s] for s in floor}
-    structured = [s for s in floor if ex_b[s] >= min_gain(s, n)]
+    structured = [s for s in floor if ex_b[s] >= min_gain(s, n, policy)]
 
     def structure(s: str) -> float:
         # a candidate that moves this signal alone (a sensor's offset) is not asked for the floor's error
-        alone = all(gains[o] < min_gain(o, n) for o in floor if o != s)
-        return max(ex_b[s] - floor_error(s, n), gains[s], 1e-12) if alone else ex_b[s]
+        alone = all(gains[o] < min_gain(o, n, policy) for o in floor if o != s)
+        return max(ex_b[s] - floor_error(s, n, policy), gains[s], 1e-12) if alone else ex_b[s]
 
     share = max((gains[s] / structure(s) for s in structured), default=0.0)
-    return float(min(share, 1.0)), {s: float(g) for s, g in gains.items()}
+    return float(min(share, 1.0)), {s: float(g) for s, g in gains.items()}, float(max(-g for g in gains.values()))

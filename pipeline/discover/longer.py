@@ -20,7 +20,7 @@ import pandas as pd
 
 from pipeline.config import RigConfig
 from pipeline.discover.candidates import Evaluator
-from pipeline.discover.evidence import STRUCTURE_FLOORS, nameable_size
+from pipeline.discover.evidence import nameable_size
 from pipeline.discover.joint import effect_intervals, joint_fit
 from pipeline.discover.measurement import MAX_SAMPLES, measurement_from_kinematics
 from pipeline.discover.residuals import noise_floor
@@ -41,12 +41,12 @@ def refit_on_more_samples(sel: Selection, kin: pd.DataFrame, config: RigConfig, 
     longer = measurement_from_kinematics(kin, config, name, zero_samples=zero_samples, max_samples=REFIT_SAMPLES)
     ev = Evaluator(longer, noise_floor(longer, longer.replay(longer.spec())))
     effects = joint_fit(ev, sel.effects)
-    if effects == sel.effects or not all(nameable_size(e.name, e.value) for e in effects):
+    if effects == sel.effects or not all(nameable_size(e.name, e.value, sel.policy) for e in effects):
         return replace(sel, work=sel.work + ev.work)
     on_window = Evaluator(window, sel.floor)
     refine_start(on_window, effects)
     left = excess(on_window, effects)
-    if max(left.values()) > STRUCTURE_FLOORS:
+    if max(left.values()) > sel.policy.structure_floors:
         return replace(sel, work=sel.work + ev.work + on_window.work)
     refine_start(ev, effects)
     spans = effect_intervals(held_start_sensitivity(ev, effects), effects)

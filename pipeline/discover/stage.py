@@ -22,6 +22,7 @@ from pipeline.calibrate.structure import declared_model
 from pipeline.discover.base_free import BaseFreeCheck, check_with_base_free
 from pipeline.discover.declared import check_declared
 from pipeline.discover.longer import refit_on_more_samples
+from pipeline.discover.policy import DEFAULT_POLICY, DiscoveryPolicy
 from pipeline.discover.selection import Selection, select
 from pipeline.model.effects import Effect
 from pipeline.model.params import PlantSpec
@@ -91,15 +92,16 @@ def _errors(meas: Measurement, spec: PlantSpec, command: np.ndarray,
 
 
 def discover(kin: pd.DataFrame, config: RigConfig, name: str, after_reset: bool = False,
-             zero_samples: dict[str, int] | None = None, model_declared: bool = True) -> Discovery:
+             zero_samples: dict[str, int] | None = None, model_declared: bool = True,
+             policy: DiscoveryPolicy = DEFAULT_POLICY) -> Discovery:
     """The whole workflow on one kinematics table (no I/O); ``after_reset``: the table is a segment
     that began after a board reset (its angle's zero is wherever the counter restarted);
     ``zero_samples``: per signal whose zero ingest read off rest readings, how many;
     ``model_declared``: the rig's TOML sets its [model] (else what was found is checked with the base
-    free, ``base_free``)."""
+    free, ``base_free``); ``policy``: the thresholds the search decides by."""
     t0 = time.perf_counter()
     sel = select(measurement_from_kinematics(kin, config, name, angle_reference_known=not after_reset,
-                                             zero_samples=zero_samples))
+                                             zero_samples=zero_samples), policy=policy)
     sel = refit_on_more_samples(sel, kin, config, name, zero_samples)
     meas = sel.meas
     check = None
@@ -108,7 +110,7 @@ def discover(kin: pd.DataFrame, config: RigConfig, name: str, after_reset: bool 
     effects = sel.effects if check is None else check.kept
     base = meas.simulate_ways(meas.spec(), sel.command_before)
     final = meas.simulate_ways(meas.spec(effects), sel.command_after) if effects else base
-    over = check_declared(meas, sel.floor) if sel.verdict == "unexplained" and not sel.effects else []
+    over = check_declared(meas, sel.floor, policy) if sel.verdict == "unexplained" and not sel.effects else []
     sig_b = signatures(meas, base["replay"], sel.floor)
     sig_a = signatures(meas, final["replay"], sel.floor)
     return Discovery(meas=meas, selection=sel, base=base, final=final,
@@ -198,7 +200,7 @@ def discovery_json(d: Discovery, recording: str) -> dict:
                     "values_refitted_on": sel.refit_samples or d.meas.n},
         "motor_start_shift_samples": _onset_shift(d),
         "simulations": sel.simulations,
-        "work": sel.work,                  # simulated samples, start estimates included (selection.WORK_BUDGET)
+        "work": sel.work,                  # simulated samples, start estimates included (DiscoveryPolicy.work_budget)
     }
     if d.base_check is not None:
         out["base_free_check"] = d.base_check.to_json()
@@ -215,8 +217,7 @@ def discovery_json(d: Discovery, recording: str) -> dict:
     if d.selection.stopped_for_time:
         out["stopped_for_time"] = ("the work budget was spent before the search ended: a further round, or a "
                                    "round's later candidates, were not tried (simulated samples, start estimates "
-                                   "included: about 6 CPU s for all runs on the recording, 7 s where friction "
-                                   "sticks often)")
+                                   "included: about 6 CPU s a run, 7 s for all runs on the recording)")
     if d.selection.failures:
         out["simulation_failures"] = len(d.selection.failures)
     return finite_or_none(out)
@@ -239,12 +240,9 @@ def zero_samples(segment: dict) -> dict[str, int]:
     return {"current": rest} if isinstance(rest, int) and rest > 0 else {}
 
 
-LATER_SEGMENT_FACTOR = 2.0
-
-
-def segment_to_discover(runs: list[RunPaths]) -> RunPaths:
+def segment_to_discover(runs: list[RunPaths], policy: DiscoveryPolicy = DEFAULT_POLICY) -> RunPaths:
     """One recording, one answer: of a capture's segments (a board reset starts one), the first,
-    unless a later one has more than ``LATER_SEGMENT_FACTOR`` times its samples.  The first segment's
+    unless a later one has more than ``policy.later_segment_factor`` times its samples.  The first segment's
     counter started where the springs hold the pinion; after a reset it restarts wherever the pinion
     then is, so where the springs rest in its count is a nuisance that a constant load torque only
     moves (such a segment tells Tl - k * offset, not Tl), and every model's start and offset are
@@ -256,7 +254,7 @@ def segment_to_discover(runs: list[RunPaths]) -> RunPaths:
 
     sizes = [samples(p) for p in runs]
     longest = max(range(len(runs)), key=sizes.__getitem__)
-    return runs[longest] if sizes[longest] > LATER_SEGMENT_FACTOR * sizes[0] else runs[0]
+    return runs[longest] if sizes[longest] > policy.later_segment_factor * sizes[0] else runs[0]
 
 
 def discover_run(paths: RunPaths, recording: str | None = None) -> tuple[Discovery, dict]:

@@ -18,37 +18,36 @@ from itertools import combinations
 import numpy as np
 
 from pipeline.discover.candidates import Evaluator, Scan, make, prune
-from pipeline.discover.evidence import MAX_DELTA_BIC, Assessment, Screened, adoption_rank, assess, nameable_size
+from pipeline.discover.evidence import Assessment, Screened, adoption_rank, assess, nameable_size
 from pipeline.discover.joint import coordinates, joint_fit
 from pipeline.discover.measurement import Measurement
+from pipeline.discover.policy import DiscoveryPolicy
 from pipeline.discover.start_refit import refine_start
 from pipeline.model.effects import CATALOGUE, Effect
 
-PAIR_POOL = 6       # round one's best candidates (by held-out gain) a pair is drawn from
-PAIR_SHRINK = 0.5   # a pair must leave at most this share of the structure the effects found leave
-WALK_NFEV = 8       # evaluations of each step's refit of the adopted effects along the profile walk
-
-
 def thorough_round(ev: Evaluator, meas: Measurement, effects: tuple[Effect, ...], gains: dict[str, float],
                    scans: dict[str, Scan], folds: tuple[np.ndarray, np.ndarray], round_: int,
-                   quick: list[Assessment | Screened], budget: int) -> list[Assessment | Screened]:
+                   quick: list[Assessment | Screened], budget: int,
+                   policy: DiscoveryPolicy) -> list[Assessment | Screened]:
     """The round again, each candidate that gained in the scan (most first, while discovery's work stays
     within ``budget``) started from its profile walk's best point; a candidate the walk does not improve
     keeps its quick result."""
     earlier = {a.fit.name if isinstance(a, Assessment) else a.name: a for a in quick}
     out: list[Assessment | Screened] = []
     for name in sorted(earlier, key=lambda n: -gains.get(n, 0.0)):
-        relaxed = (jointly_relaxed(ev, effects, name, scans[name])
+        relaxed = (jointly_relaxed(ev, effects, name, scans[name], policy)
                    if gains.get(name, 0.0) > 0 and ev.work <= budget else None)
-        out.append(earlier[name] if relaxed is None else assess(ev, meas, effects, name, folds, round_, relaxed))
-    return sorted(out, key=lambda a: adoption_rank(a) if isinstance(a, Assessment) else (True, float("inf")))
+        out.append(earlier[name] if relaxed is None
+                   else assess(ev, meas, effects, name, folds, round_, policy, relaxed))
+    return sorted(out, key=lambda a: adoption_rank(a) if isinstance(a, Assessment) else float("inf"))
 
 
-def jointly_relaxed(ev: Evaluator, base: tuple[Effect, ...], name: str, scanned: Scan) -> Scan | None:
+def jointly_relaxed(ev: Evaluator, base: tuple[Effect, ...], name: str, scanned: Scan,
+                    policy: DiscoveryPolicy) -> Scan | None:
     """``scanned`` with one more point: the candidate and every adopted effect fitted jointly from the
     best point of its profile walk, inserted where its value falls (so ``fit_candidate`` starts from it
     and brackets it by the scan's neighbours); None when that beats no scan point."""
-    walked = profile_walk(ev, base, name, scanned.grid)
+    walked = profile_walk(ev, base, name, scanned.grid, policy.walk_nfev)
     if walked is None:
         return None
     fitted = joint_fit(ev, walked)
@@ -67,11 +66,13 @@ def jointly_relaxed(ev: Evaluator, base: tuple[Effect, ...], name: str, scanned:
     return Scan(grid=grid, nll=losses, bases=bases)
 
 
-def profile_walk(ev: Evaluator, base: tuple[Effect, ...], name: str, grid: np.ndarray) -> tuple[Effect, ...] | None:
+def profile_walk(ev: Evaluator, base: tuple[Effect, ...], name: str, grid: np.ndarray,
+                 nfev: int) -> tuple[Effect, ...] | None:
     """The best point of the candidate's profile likelihood, walked outward from "absent" along its scan
     points in both directions, the adopted effects refitted at each point from where the previous point
     left them (a continuation: it follows a curved valley that no single linear step reaches), each
-    direction stopped once the likelihood falls.  None when no point beats the adopted model."""
+    direction stopped once the likelihood falls; each refit within ``nfev`` evaluations.  None when no
+    point beats the adopted model."""
     absent = CATALOGUE[name].PARAMS[0].absent
     home = int(np.argmin(np.abs(np.asarray(grid) - absent)))
     best_nll, best = ev.nll(ev.sim(base)), None
@@ -79,7 +80,7 @@ def profile_walk(ev: Evaluator, base: tuple[Effect, ...], name: str, grid: np.nd
         current, last = base, ev.nll(ev.sim(base))
         for i in range(home + step, len(grid) if step > 0 else -1, step):
             held = make(name, float(grid[i]))
-            current = joint_fit(ev, current, max_nfev=WALK_NFEV, held=(held,))
+            current = joint_fit(ev, current, max_nfev=nfev, held=(held,))
             nll = ev.nll(ev.sim((*current, held)))
             if nll < best_nll:
                 best_nll, best = nll, (*current, held)
@@ -90,16 +91,17 @@ def profile_walk(ev: Evaluator, base: tuple[Effect, ...], name: str, grid: np.nd
 
 
 def pair_restart(ev: Evaluator, meas: Measurement, effects: tuple[Effect, ...],
-                 first_round: list[Assessment | Screened], budget: int) -> tuple[Effect, ...] | None:
+                 first_round: list[Assessment | Screened], budget: int,
+                 policy: DiscoveryPolicy) -> tuple[Effect, ...] | None:
     """Two effects that together do what no single one does, for a fresh start of the rounds: round
     one adopts the candidate that alone removes most (a long loop delay stands in for a softer spring
     beside a viscous friction), and the rounds after it cannot take that back.  Each pair of round
     one's best candidates is fitted jointly from their round-one values; the best pair is kept when
-    it beats the effects found by BIC (each parameter charged), leaves at most ``PAIR_SHRINK`` of their
+    it beats the effects found by BIC (each parameter charged), leaves at most ``pair_shrink`` of their
     structure (a pair of wrong effects can buy a little likelihood without removing the pattern) and,
     refitted, still needs both members (``prune``) at a nameable size.  None when no pair does."""
     pool = [a for a in first_round if isinstance(a, Assessment) and a.fit.heldout_nll_gain > 0
-            and nameable_size(a.fit.name, a.fit.value)][:PAIR_POOL]
+            and nameable_size(a.fit.name, a.fit.value, policy)][:policy.pair_pool]
     n_obs = meas.n * len(meas.signals)
     nll_now, k_now = ev.nll(ev.sim(effects)), len(coordinates(effects))
     left_now = _structure(ev, effects)
@@ -111,13 +113,13 @@ def pair_restart(ev: Evaluator, meas: Measurement, effects: tuple[Effect, ...],
         fitted = joint_fit(ev, (a.fit.effect, b.fit.effect))
         nll = ev.nll(ev.sim(fitted))
         delta_bic = 2.0 * (nll - nll_now) + (len(coordinates(fitted)) - k_now) * np.log(n_obs)
-        if (delta_bic <= MAX_DELTA_BIC and _structure(ev, fitted) <= PAIR_SHRINK * left_now
+        if (delta_bic <= policy.max_delta_bic and _structure(ev, fitted) <= policy.pair_shrink * left_now
                 and (best is None or nll < best[0])):
             best = (nll, fitted)
     if best is None:
         return None
     kept = prune(ev, best[1])
-    return kept if len(kept) == 2 and all(nameable_size(e.name, e.value) for e in kept) else None
+    return kept if len(kept) == 2 and all(nameable_size(e.name, e.value, policy) for e in kept) else None
 
 
 def _structure(ev: Evaluator, effects: tuple[Effect, ...]) -> float:

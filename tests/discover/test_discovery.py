@@ -15,6 +15,7 @@ from pipeline.config import default_config
 from pipeline.discover.candidates import parameter_of
 from pipeline.discover.stage import discover, discovery_json
 from pipeline.discover.measurement import measurement_from_kinematics
+from pipeline.discover.policy import DEFAULT_POLICY, DiscoveryPolicy
 from pipeline.model.effects import make_effect
 from pipeline.rig.serial import Artefacts
 from tests.discover.synthetic import cogging_kinematics, rig_kinematics
@@ -153,7 +154,7 @@ def test_a_catalogued_effect_beside_an_uncatalogued_one_is_named_and_the_rest_le
 
 
 @LONG
-def test_the_work_budget_decides_the_same_way_on_any_machine(tmp_path, monkeypatch):
+def test_the_work_budget_decides_the_same_way_on_any_machine(tmp_path):
     """Discovery's budget is counted in simulated samples, not CPU seconds (BLAS threads waiting for
     a core on a loaded machine counted as CPU): a budget the first round already spends stops the
     second from starting, whatever the load."""
@@ -161,14 +162,25 @@ def test_the_work_budget_decides_the_same_way_on_any_machine(tmp_path, monkeypat
     kin, rig, _ = rig_kinematics(hidden, seed=2, work=tmp_path)
     full = discover(kin, rig, "pair").selection
     assert not full.stopped_for_time and len(full.rounds) >= 2
-    monkeypatch.setattr("pipeline.discover.selection.WORK_BUDGET", 1)
-    cut = discover(kin, rig, "pair").selection
+    cut = discover(kin, rig, "pair", policy=DiscoveryPolicy(work_budget=1)).selection
     assert cut.stopped_for_time and len(cut.rounds) == 1 and len(cut.effects) == 1
     assert cut.simulations < full.simulations
+    assert cut.policy.work_budget == 1 and full.policy == DEFAULT_POLICY
+
+
+def test_a_policy_with_fewer_effects_names_fewer(tmp_path):
+    """The thresholds are one value passed to the search: where the default names both hidden effects,
+    a policy that allows one names one of them."""
+    hidden = (_effect("viscous_friction", 3e-4), _effect("current_sensor_offset", 0.08))
+    kin, rig, _ = rig_kinematics(hidden, seed=2, work=tmp_path)
+    full = discover(kin, rig, "pair").selection
+    one = discover(kin, rig, "pair", policy=DiscoveryPolicy(max_effects=1)).selection
+    assert {e.name for e in full.effects} == {"viscous_friction", "current_sensor_offset"}
+    assert len(one.effects) == 1 and one.effects[0].name in {"viscous_friction", "current_sensor_offset"}
 
 
 @LONG
-def test_a_later_run_on_the_same_recording_gets_only_what_the_total_budget_leaves(tmp_path, monkeypatch):
+def test_a_later_run_on_the_same_recording_gets_only_what_the_total_budget_leaves(tmp_path):
     """The runner-up's rounds (and the rounds after resettled switches) share one budget with the first
     run, so the slowest recording is bounded as a whole: a run started with the total already spent
     stops after its first round, and the selection reports the work of both."""
@@ -178,8 +190,8 @@ def test_a_later_run_on_the_same_recording_gets_only_what_the_total_budget_leave
     kin, rig, _ = rig_kinematics(hidden, seed=2, work=tmp_path)
     meas = measurement_from_kinematics(kin, rig, "pair")
     names = tuple(selection.CATALOGUE)
-    fresh = selection._forward(meas, names)
+    fresh = selection._forward(meas, names, DEFAULT_POLICY)
     assert not fresh.stopped_for_time and len(fresh.rounds) >= 2 and fresh.work > 0
-    late = selection._forward(meas, names, spent=selection.TOTAL_WORK_BUDGET)
+    late = selection._forward(meas, names, DEFAULT_POLICY, spent=DEFAULT_POLICY.total_work_budget)
     assert late.stopped_for_time and len(late.rounds) == 1
-    assert late.work > selection.TOTAL_WORK_BUDGET
+    assert late.work > DEFAULT_POLICY.total_work_budget

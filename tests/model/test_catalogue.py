@@ -58,13 +58,13 @@ def test_declaration_is_complete(name):
 @pytest.mark.parametrize("name", NAMES)
 def test_the_scan_reaches_down_to_the_smallest_nameable_size(name):
     """Discovery scans only so many points, each a replay and a start estimate; a scan starting far above the
-    smallest size it may name (``evidence.MIN_SIZE_SHARE`` of the typical) would bracket such an effect
+    smallest size it may name (``DiscoveryPolicy.min_size_share`` of the typical) would bracket such an effect
     between "absent" and a point many times its size.  On each side of "absent" the bounds allow, the
     nearest point is within 2.5 times that size."""
-    from pipeline.discover.evidence import MIN_SIZE_SHARE
+    from pipeline.discover.policy import DEFAULT_POLICY
 
     p = CATALOGUE[name].PARAMS[0]
-    smallest = MIN_SIZE_SHARE * abs(p.typical - p.absent)
+    smallest = DEFAULT_POLICY.min_size_share * abs(p.typical - p.absent)
     offsets = np.array(p.scan) - p.absent
     for side, room in ((1.0, p.bounds[1] - p.absent), (-1.0, p.absent - p.bounds[0])):
         if room > 0:
