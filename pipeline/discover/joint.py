@@ -13,6 +13,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from pipeline.discover.residuals import residuals
+from pipeline.estimate import autocorrelation_time
 from pipeline.model.effects import Effect, Param
 
 # ------------------------------------------------------------------ the joint parameter vector
@@ -140,21 +141,6 @@ def joint_fit(ev, effects: tuple[Effect, ...], max_nfev: int = 40, held: tuple[E
         return effects
     trial = with_values(effects, sol.x * scale)
     return trial if ev.nll(ev.sim((*trial, *held))) < ev.nll(ev.sim((*effects, *held))) else effects
-
-
-def autocorrelation_time(r: np.ndarray, max_lag: int = 50) -> float:
-    """1 + 2 sum rho_k (to the first negative rho): how many samples one independent one is worth."""
-    r = r - r.mean()
-    den = float(np.dot(r, r))
-    if den == 0:
-        return 1.0
-    tau = 1.0
-    for k in range(1, min(max_lag, len(r) // 4)):
-        rho = float(np.dot(r[:-k], r[k:])) / den
-        if rho <= 0:
-            break
-        tau += 2.0 * rho
-    return tau
 
 
 def intervals(sens: Sensitivity, values: list[float]) -> list[tuple[float, float]]:

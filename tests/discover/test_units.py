@@ -6,7 +6,7 @@ import pytest
 
 from pipeline.config import default_config
 from pipeline.discover.candidates import folds_by_cycle
-from pipeline.discover.joint import autocorrelation_time
+from pipeline.estimate import autocorrelation_time
 from pipeline.discover.measurement import measurement_from_kinematics
 from pipeline.discover.residuals import describe, noise_floor, signatures
 from pipeline.errors import PdrError
