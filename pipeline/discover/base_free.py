@@ -21,7 +21,7 @@ import numpy as np
 from pipeline.calibrate.structure import base_unknowns
 from pipeline.discover.measurement import Measurement
 from pipeline.discover.residuals import target_of
-from pipeline.estimate import FitResult, Model, Problem, effect_unknowns, fit
+from pipeline.estimate import FitResult, Model, Problem, effect_unknowns
 from pipeline.model.effects import Effect
 
 HINT = ("the rig's [model] is not declared and the recording does not fit Table I's base model: run "
@@ -52,7 +52,7 @@ def _fit(meas: Measurement, effects: tuple[Effect, ...], base_free: bool, factor
     if base_free:
         unknowns = base_unknowns(meas.config.model, declared=False) + unknowns
     problem = Problem((target_of(meas),), Model(base=meas.config.model, effects=effects), tuple(unknowns))
-    return fit(problem.residual(), problem.unknowns, max_nfev=MAX_NFEV, segments=problem.segments(), factors=factors)
+    return problem.fit(max_nfev=MAX_NFEV, factors=factors)
 
 
 def _effects_at(res: FitResult, effects: tuple[Effect, ...]) -> tuple[Effect, ...]:

@@ -43,14 +43,14 @@ class Problem:
                 out.append(res[s] / np.sqrt(target.noise[s]))
         return out
 
-    def segments(self) -> list[slice]:
-        parts = self.whitened(self.model)
-        edges = np.cumsum([0, *map(len, parts)])
+    def rows(self) -> list[slice]:
+        """The residual's rows of each target's signal, in ``whitened``'s order (from one evaluation)."""
+        edges = np.cumsum([0, *map(len, self.whitened(self.model))])
         return [slice(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
 
-    def residual(self) -> Callable[[np.ndarray], np.ndarray]:
-        size = sum(len(p) for p in self.whitened(self.model))
-
+    def residual(self, size: int) -> Callable[[np.ndarray], np.ndarray]:
+        """Internal coordinates -> the stacked whitened residual of ``size`` rows; a model the simulator
+        refuses, or one whose rows are not finite, gives ``FAILED`` rows (steep: the fit steps back)."""
         def f(x: np.ndarray) -> np.ndarray:
             try:
                 out = np.concatenate(self.whitened(self.model_at(x)))
@@ -59,8 +59,10 @@ class Problem:
             return out if out.shape == (size,) and np.all(np.isfinite(out)) else np.full(size, FAILED)
         return f
 
-    def fit(self, max_nfev: int = 200) -> FitResult:
-        return fit(self.residual(), self.unknowns, max_nfev=max_nfev, segments=self.segments())
+    def fit(self, max_nfev: int = 200, factors: np.ndarray | None = None) -> FitResult:
+        rows = self.rows()
+        return fit(self.residual(rows[-1].stop if rows else 0), self.unknowns, max_nfev=max_nfev, segments=rows,
+                   factors=factors)
 
 
 def solve(targets: Sequence[Target], model: Model, unknowns: Sequence[Unknown], max_nfev: int = 200) -> FitResult:
