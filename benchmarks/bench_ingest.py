@@ -27,7 +27,7 @@ import pyarrow.compute as pc
 
 
 def make_capture(rows: int, seed: int = 0, ide_prefix: bool = False) -> bytes:
-    """An INTERFACE.md capture: millis at 1 kHz with 1% late loops, encoder walk, ADC, dir.
+    """A docs/FORMAT.md capture: millis at 1 kHz with 1% late loops, encoder walk, ADC, dir.
 
     ``ide_prefix``: every line as the Arduino IDE serial monitor saves it, which sends the
     file down the general (line-by-line, still vectorised) path instead of the clean fast path.

@@ -307,7 +307,7 @@ def config_from_dict(data: dict[str, Any], source: str = "stored") -> RigConfig:
 
 
 def effects_toml_snippet(effects: tuple[Effect, ...] | list[Effect]) -> str:
-    """The ``[effects]`` table a user can paste into a rig TOML (INTERFACE.md form)."""
+    """The ``[effects]`` table a user can paste into a rig TOML (docs/FORMAT.md form)."""
     lines = ["[effects]"]
     for e in effects:
         inner = ", ".join(f"{k} = {v:.6g}" for k, v in e.parameters.items())

@@ -1,4 +1,4 @@
-"""``pdr simulate``: the rig's model alone, closed loop from rest (INTERFACE.md).
+"""``pdr simulate``: the rig's model alone, closed loop from rest (docs/FORMAT.md).
 
 Not in ``pipeline.model``: the report is the model's run plus the derive
 stage's energy balance, and the model package is what the stages import,

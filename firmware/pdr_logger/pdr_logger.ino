@@ -1,5 +1,5 @@
 /* pdr_logger: the paper's pinion-double-rack rig on an Arduino UNO (ATmega328P), logging what the pdr
- * pipeline reads (INTERFACE.md's format): one line `t_ms,counts,adc,dir` per control loop, header first.
+ * pipeline reads (docs/FORMAT.md's format): one line `t_ms,counts,adc,dir` per control loop, header first.
  *
  * Each loop, on a millis() schedule that does not drift (the next instant is the last one plus the
  * period, not "now" plus the period): sample millis(), the encoder count and the ACS712; decide the

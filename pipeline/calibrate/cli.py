@@ -14,7 +14,7 @@ def calibrate(
     recordings: list[str] = typer.Argument(..., metavar="RECORDING",
                                            help="Raw CSV paths of one rig (ingested and derived on the fly), "
                                                 "or processed run folders / run names."),
-    json_out: bool = typer.Option(False, "--json", help="Print one JSON object (INTERFACE.md) on stdout."),
+    json_out: bool = typer.Option(False, "--json", help="Print one JSON object (docs/FORMAT.md) on stdout."),
     adopt: bool = typer.Option(False, "--adopt", help="Write the calibrated \\[model] into raw/rig.toml beside the "
                                                       "recordings, keeping the rest of the file. Never done without it."),
     out: Optional[Path] = typer.Option(None, "--out", help="Folder for the report, model.toml and .rrd "

@@ -19,7 +19,7 @@ The workflow (issue 6), module by module:
   excluding "no effect", the motivating residual pattern removed), stacking while evidence
   holds, near ties, and the verdict ``explained`` / ``none`` / ``unexplained``; every threshold they
   decide by is a field of ``policy.DiscoveryPolicy``, passed to ``select(meas, policy=...)``.
-- ``stage``: the pure ``discover(kinematics, config, name)`` and the JSON of INTERFACE.md; MSEs
+- ``stage``: the pure ``discover(kinematics, config, name)`` and the JSON of docs/FORMAT.md; MSEs
   before/after are computed by validation's own code (``simulate_both`` + ``signal_errors``).
 - ``report``: JSON, ``[effects]`` snippet, Markdown with PNGs, Rerun recording.
 - ``adopt``: writes the augmented ``[effects]`` into the sidecar TOML, only on ``--adopt``.

@@ -48,7 +48,7 @@ def discover(
                                                 "a processed run folder or a run name; or several raw CSV "
                                                 "paths: one row each in <processed>/discovery/summary.csv, "
                                                 "pooled estimates and trends per effect."),
-    json_out: bool = typer.Option(False, "--json", help="Print one JSON object (INTERFACE.md) on stdout."),
+    json_out: bool = typer.Option(False, "--json", help="Print one JSON object (docs/FORMAT.md) on stdout."),
     adopt: bool = typer.Option(False, "--adopt", help="Write the augmented \\[effects] table into the recording's "
                                                       "sidecar TOML (raw/<name>.toml). Never done without it."),
     out: Optional[Path] = typer.Option(None, "--out", help="Folder for the report, plots, TOML snippet and "

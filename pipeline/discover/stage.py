@@ -169,7 +169,7 @@ def unexplained_text(d: Discovery) -> list[str]:
 
 
 def discovery_json(d: Discovery, recording: str) -> dict:
-    """The object ``pdr discover --json`` prints (INTERFACE.md) plus the evidence behind it."""
+    """The object ``pdr discover --json`` prints (docs/FORMAT.md) plus the evidence behind it."""
     sel = d.selection
     candidates = [a.to_json() for rnd in sel.rounds for a in rnd]
     out = {

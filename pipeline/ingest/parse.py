@@ -27,7 +27,7 @@ LONE_CR = re.compile(rb"\r(?!\n)")
 IDE_PREFIX = BY_NAME["arduino-ide"].pattern        # the Arduino IDE monitor's stamp; every terminal's: prefix.py
 INT_RE = r"-?[0-9]{1,18}"
 TIME_RE = r"-?[0-9]{1,15}(\.[0-9]{1,9})?"
-LOGICAL = ("t_raw", "counts", "adc", "dir")        # raw columns in INTERFACE.md order
+LOGICAL = ("t_raw", "counts", "adc", "dir")        # raw columns in docs/FORMAT.md order
 QUOTE_LIMIT = 80                                   # characters of a bad line kept in the report
 
 
@@ -182,7 +182,7 @@ def layout_from_header(names: list[str], columns: ColumnsConfig, source: str, li
 
 
 def positional_layout(width: int, columns: ColumnsConfig, source: str) -> dict[str, int]:
-    """No header: fields in INTERFACE.md order (t_ms, counts, adc, dir), skipping columns not logged."""
+    """No header: fields in docs/FORMAT.md order (t_ms, counts, adc, dir), skipping columns not logged."""
     raw = dict(zip(LOGICAL, (columns.t_ms, columns.counts, columns.adc, columns.dir)))
     names = [lg for lg, name in raw.items() if name]
     if width < 2 or "t_raw" not in names[:1] or len(names) < 2:

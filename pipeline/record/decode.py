@@ -151,7 +151,7 @@ class LineDecoder:
         rows.append((self.tally.segment, values))
 
     def _positional(self, rows: list[tuple[int, dict]]) -> None:
-        """No header came: the fields in INTERFACE.md order, as many as most early lines have (as ingest)."""
+        """No header came: the fields in docs/FORMAT.md order, as many as most early lines have (as ingest)."""
         early, self._early = self._early, []
         width = int(np.bincount([len(header_fields(t)) for t in early]).argmax())
         try:

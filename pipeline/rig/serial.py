@@ -2,7 +2,7 @@
 
 ``render`` turns the samples the board printed into the bytes a serial capture
 holds, adding only the artefacts asked for in ``Artefacts`` (all off by
-default, so a default recording is the plain INTERFACE.md format).  It
+default, so a default recording is the plain docs/FORMAT.md format).  It
 returns, for every sample, the physical line (1-based) it ended up on and its
 fate ("ok", "garbled" or "dropped"), and a log of every injected artefact with
 its line number, so tests can check that the ingest stage reports exactly
@@ -32,7 +32,7 @@ CAPTURE_DAY = datetime(2026, 11, 25, tzinfo=timezone(timedelta(hours=1)))   # th
 
 @dataclass(frozen=True)
 class Artefacts:
-    """What the capture looks like; every field at its default gives the plain INTERFACE.md format."""
+    """What the capture looks like; every field at its default gives the plain docs/FORMAT.md format."""
 
     header: bool = True                       # print the column header line (again after a reset)
     column_names: tuple[str, str, str, str] = STANDARD_COLUMNS   # names the sketch prints, in that order

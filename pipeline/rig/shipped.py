@@ -24,7 +24,7 @@ from pipeline.rig.serial import Artefacts
 
 SHIPPED: dict[str, tuple[str, RigSetup]] = {
     "paper_clean": (
-        "the paper's rig (MODEL.md Table I), plain INTERFACE.md format",
+        "the paper's rig (MODEL.md Table I), plain docs/FORMAT.md format",
         RigSetup(seed=102)),
     "paper_ide_reset": (
         "the paper's rig captured with the Arduino IDE 2 serial monitor: timestamp prefix, CRLF, BOM, "

@@ -276,7 +276,7 @@ def test_the_real_captures_are_processed_or_refused_in_one_line(workspace):
 
 
 def _interface_capture() -> bytes:
-    """good0 as a real serial capture per INTERFACE.md: BOM, CRLF, comments, blank lines, IDE prefixes, a
+    """good0 as a real serial capture per docs/FORMAT.md: BOM, CRLF, comments, blank lines, IDE prefixes, a
     partial first line, garbled lines, and a repeated header where the board reset and logging restarted."""
     header, body = rows(good_csv(0))
     lines = [b"\xef\xbb\xbf# pdr hostile capture\r\n", b"9,511,1\r\n", header.rstrip() + b"\r\n", b"\r\n"]

@@ -1,4 +1,4 @@
-"""A rig's ADC is the rig's: a 12-bit converter at 3.3 V (an ESP32, INTERFACE.md's ``adc_steps``/``adc_vref``)
+"""A rig's ADC is the rig's: a 12-bit converter at 3.3 V (an ESP32, docs/FORMAT.md's ``adc_steps``/``adc_vref``)
 is ingested and discovered like the UNO's 10 bits at 5 V; the schema's ADC range follows the rig's TOML."""
 
 from __future__ import annotations

@@ -168,7 +168,7 @@ edits = st.lists(st.tuples(st.integers(0, 39), st.one_of(
 
 
 def _capture(rows, cfg, header, eol, sort) -> bytes:
-    """The rows as a capture with the columns ``cfg`` logs, in INTERFACE.md order."""
+    """The rows as a capture with the columns ``cfg`` logs, in docs/FORMAT.md order."""
     c = cfg.columns
     logged = [(k, n) for k, n in zip(LOGICAL, (c.t_ms, c.counts, c.adc, c.dir)) if n]
     layout = {k: j for j, (k, _) in enumerate(logged)}
