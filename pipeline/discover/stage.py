@@ -105,7 +105,7 @@ def discover(kin: pd.DataFrame, config: RigConfig, name: str, after_reset: bool 
     sel = refit_on_more_samples(sel, kin, config, name, zero_samples)
     meas = sel.meas
     check = None
-    if not model_declared and (sel.effects or sel.verdict != "none"):
+    if not model_declared and sel.verdict == "unexplained":
         check = check_with_base_free(meas, sel.effects)
     effects = sel.effects if check is None else check.kept
     base = meas.simulate_ways(meas.spec(), sel.command_before)
