@@ -56,9 +56,7 @@ class Discovery:
 
     @property
     def verdict(self) -> str:
-        if self.base_check is not None and self.base_check.base_off:
-            return "unexplained"
-        return self.selection.verdict
+        return self.selection.verdict       # the base-free check runs on an unexplained verdict and keeps it
 
     @property
     def hint(self) -> str | None:

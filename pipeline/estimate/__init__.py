@@ -12,8 +12,8 @@
 """
 
 from pipeline.estimate.fit import FitResult, autocorrelation_time, fit
-from pipeline.estimate.problem import Problem, Target, solve
+from pipeline.estimate.problem import Problem, Target
 from pipeline.estimate.unknowns import SPRINGS, Model, Prior, Unknown, effect_unknowns
 
 __all__ = ["FitResult", "Model", "Prior", "Problem", "SPRINGS", "Target", "Unknown", "autocorrelation_time",
-           "effect_unknowns", "fit", "solve"]
+           "effect_unknowns", "fit"]

@@ -82,10 +82,6 @@ class FitResult:
         return len(self.unknowns)
 
     @property
-    def neg2_log_likelihood(self) -> float:
-        return self.data_chi2
-
-    @property
     def aic(self) -> float:
         return self.data_chi2 + 2.0 * self.k
 
@@ -101,10 +97,6 @@ class FitResult:
             sd = float(np.sqrt(max(self.cov_internal[i, i], 0.0)))
             out[u.name] = sd * u.to_value(self.x[i]) if u.log else sd
         return out
-
-    def correlation(self) -> np.ndarray:
-        d = np.sqrt(np.clip(np.diag(self.cov_internal), 1e-300, None))
-        return self.cov_internal / np.outer(d, d)
 
     def wald_interval(self, name: str, level: float = 0.95) -> tuple[float, float]:
         i = self.names.index(name)

@@ -8,7 +8,7 @@ variance.  Several recordings of one rig share the model's unknowns: their rows 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable, Sequence
+from typing import Callable
 
 import numpy as np
 
@@ -63,7 +63,3 @@ class Problem:
         rows = self.rows()
         return fit(self.residual(rows[-1].stop if rows else 0), self.unknowns, max_nfev=max_nfev, segments=rows,
                    factors=factors)
-
-
-def solve(targets: Sequence[Target], model: Model, unknowns: Sequence[Unknown], max_nfev: int = 200) -> FitResult:
-    return Problem(tuple(targets), model, tuple(unknowns)).fit(max_nfev=max_nfev)
