@@ -68,6 +68,13 @@ class DiscoveryPolicy:
     # absorbs a small misfit of another kind takes a small value
     min_size_share: float = 0.1
 
+    # --- the criterion (``search``)
+    # held-out nll an effect must remove, in independent samples, for each of its parameters: clear of
+    # what chance gives a parameter fitted to noise
+    evidence_per_parameter: float = 5.0
+    # round one's best candidates the rounds are run from (near-twins picked before their partners are known)
+    starts: int = 3
+
     # --- the verdict
     # residual MSE above this many noise variances is structure: the line between explained/none and
     # unexplained, and where the searches beyond the rounds stop

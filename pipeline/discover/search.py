@@ -1,0 +1,323 @@
+"""Forward selection over the catalogue by one criterion: held-out likelihood.
+
+The criterion.  A model (the rig's base plus a set of effects) is scored by its cross-validated
+likelihood: its parameters are fitted on half the cycles and it predicts the other half, both
+ways (``candidates.folds_by_cycle``).  The gain of adding an effect is the held-out negative
+log-likelihood it removes, per signal divided by the autocorrelation time of that signal's
+residual (the clock's truncation makes the angle's error smooth: tau ~ 20 samples are worth one),
+so the gain is counted in independent samples.  An effect is worth its parameters when its gain
+exceeds ``policy.evidence_per_parameter`` for each of them: an effect with two parameters is
+charged twice.  Held-out data already charge an effect that fits noise (it predicts worse), so
+the charge only asks the evidence to be clear of chance.
+
+The search.  Round by round every remaining candidate is tried on top of the model found so far
+(all parameters of all effects refitted jointly); the best by the criterion is adopted while it
+clears its charge.  Round one's best candidates are several starts: the rounds run from each, and
+the model with the best criterion (gain less charges) is kept, because the first pick among
+near-twins (a softer spring and a heavier rack both slow the oscillation) is made before the
+partners are known.  Then each effect the others made redundant (its gain, with them refitted,
+no longer clears its charge) is dropped.
+
+The verdict.  ``none`` when nothing is adopted and the recording is at its noise floor;
+``explained`` when effects are adopted and what is left is within ``policy.structure_floors``
+noise variances; ``unexplained`` otherwise.  A sensor's zero is not named beside structure in the
+other signals: a plant the model gets wrong moves that sensor's mean too.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields, replace
+
+import numpy as np
+
+from pipeline.discover.candidates import Evaluator, Fit, fit_candidate, folds_by_cycle, scan
+from pipeline.discover.joint import effect_intervals, gauss_newton, joint_fit, moved_effects, sensitivity
+from pipeline.discover.measurement import Measurement, ambiguous_switches, settle_switches
+from pipeline.discover.policy import DEFAULT_POLICY, DiscoveryPolicy
+from pipeline.discover.residuals import noise_floor, residuals
+from pipeline.discover.start_refit import held_start_sensitivity, refine_start
+from pipeline.estimate.fit import autocorrelation_time
+from pipeline.model.effects import CATALOGUE, Effect
+
+
+@dataclass
+class Candidate:
+    """One candidate effect tried in one round: its fit and its held-out evidence."""
+
+    fit: Fit
+    round: int
+    evidence: float          # held-out nll gain, in independent samples (the criterion)
+    charge: float            # what its parameters cost: ``evidence_per_parameter`` each
+    share: float             # the largest share of a signal's held-out structure it removes
+    accepted: bool = False   # adopted in this round
+
+    @property
+    def name(self) -> str:
+        return self.fit.name
+
+    @property
+    def score(self) -> float:
+        return self.evidence
+
+    @property
+    def clears(self) -> bool:
+        return self.evidence > self.charge and self.share >= self.min_share and self.nameable
+
+    min_share: float = 0.5
+    nameable: bool = True
+
+    def to_json(self) -> dict:
+        f = self.fit
+        return {"name": f.name, "score": round(self.evidence, 3), "round": self.round,
+                "parameters": f.effect.parameters, "units": dict(CATALOGUE[f.name].UNITS),
+                "interval": {f.parameter: list(f.interval)}, "fold_estimates": {f.parameter: list(f.fold_values)},
+                "heldout_evidence": self.evidence, "charge": self.charge, "heldout_nll_gain": f.heldout_nll_gain,
+                "heldout_mse_before": f.heldout_mse_before, "heldout_mse_after": f.heldout_mse_after,
+                "clears_charge": self.clears, "accepted": self.accepted}
+
+
+@dataclass
+class Selection:
+    effects: tuple[Effect, ...]
+    verdict: str
+    rounds: list[list[Candidate]]
+    floor: dict[str, float]
+    excess_before: dict[str, float]       # replay MSE above noise, in noise variances, base model
+    excess_after: dict[str, float]        # same for the final model
+    near_tie: dict | None
+    simulations: int
+    failures: list[str]                   # parameter sets the simulator refused (scored as infinitely bad)
+    command_before: np.ndarray            # the command replayed for the base model ...
+    command_after: np.ndarray             # ... and the final one (differ only in an inferred motor start)
+    stopped_for_time: bool                # the work budget ended the search
+    work: int                             # what the search cost (``Evaluator.work``)
+    pruned: list[str]                     # adopted, then dropped once later effects made them redundant
+    intervals: list[tuple[float, float]]  # ~95 % interval of each final effect's parameter, all refitted jointly
+    meas: Measurement                     # the measurement fitted (inferred switches settled)
+    policy: DiscoveryPolicy               # the thresholds the search used
+    refit_samples: int = 0                # samples the effects were refitted on after the search, if more
+
+
+# ------------------------------------------------------------------ the criterion
+
+def evidence(fit: Fit, taus: dict[str, float], n: int) -> float:
+    """Held-out nll removed, in independent samples: per signal n/2 log(MSE before / after) over its
+    autocorrelation time (``fit``'s held-out MSEs are the two folds' together)."""
+    total = 0.0
+    for s, before in fit.heldout_mse_before.items():
+        after = fit.heldout_mse_after.get(s, np.inf)
+        if not (np.isfinite(after) and after > 0 and before > 0):
+            return -np.inf
+        total += 0.5 * n * np.log(before / after) / taus[s]
+    return float(total)
+
+
+def structure_share(fit: Fit, floor: dict[str, float]) -> float:
+    """The largest share of one signal's held-out structure (MSE above its noise) the candidate removes:
+    an effect that is there removes the pattern it makes; one that buys likelihood while most of the
+    pattern stays is absorbing the misfit of something else."""
+    shares = [(b - fit.heldout_mse_after.get(s, np.inf)) / (b - floor[s])
+              for s, b in fit.heldout_mse_before.items() if b > floor[s]]
+    return max(shares, default=0.0)
+
+
+def residual_taus(ev: Evaluator, effects: tuple[Effect, ...]) -> dict[str, float]:
+    return {s: autocorrelation_time(r) for s, r in residuals(ev.meas, ev.sim(effects)).items()}
+
+
+def charge(name: str, policy: DiscoveryPolicy) -> float:
+    return policy.evidence_per_parameter * len(CATALOGUE[name].PARAMS)
+
+
+def heldout_nll(ev: Evaluator, effects: tuple[Effect, ...], folds, taus: dict[str, float]) -> float:
+    """The model's held-out nll (in independent samples): refitted on each fold's training half by one
+    joint Gauss-Newton step from its fit on all samples, scored on the other half."""
+    total = 0.0
+    sens = sensitivity(ev, effects) if effects else None
+    for train in folds:
+        trial = effects
+        if sens is not None:
+            step, _ = gauss_newton(sens.r0, sens.jac, train)
+            trial = moved_effects(effects, step)
+        res = residuals(ev.meas, ev.sim(trial))
+        for s, r in res.items():
+            x = r[~train]
+            total += 0.5 * len(x) * np.log(float(np.mean(x * x)) + 1e-3 * ev.floor[s]) / taus[s]
+    return float(total) if np.isfinite(total) else np.inf
+
+
+# ------------------------------------------------------------------ the search
+
+def only_a_constant_torque(meas: Measurement, name: str) -> bool:
+    """Whether the effect changes nothing in the plant but its constant external torque: after a board
+    reset that only moves where the springs rest in the counter's unknown zero, so it is not a candidate."""
+    base = meas.spec()
+    spec = meas.spec((CATALOGUE[name].at(CATALOGUE[name].PARAMS[0].typical),))
+    return [f.name for f in fields(base) if getattr(base, f.name) != getattr(spec, f.name)] == ["torque"]
+
+
+def excess(ev: Evaluator, effects: tuple[Effect, ...]) -> dict[str, float]:
+    return {s: m / ev.floor[s] - 1.0 for s, m in ev.mse(ev.sim(effects)).items()}
+
+
+@dataclass
+class _Run:
+    effects: tuple[Effect, ...]
+    rounds: list[list[Candidate]]
+    net: float                 # total evidence less charges of the effects adopted
+
+
+def nameable(effect: Effect, policy: DiscoveryPolicy) -> bool:
+    """Whether some parameter of the effect is at least ``min_size_share`` of its typical size away from
+    absent: a catalogued effect that absorbs a small misfit of another kind (a hot winding read as
+    springs 1-2 % stiffer) takes a small value, so smaller is not named."""
+    return any(abs(effect.parameters[p.name] - p.absent) >= policy.min_size_share * abs(p.typical - p.absent)
+               for p in effect.PARAMS)
+
+
+def _round(ev: Evaluator, effects: tuple[Effect, ...], remaining: list[str], folds, round_: int,
+           policy: DiscoveryPolicy) -> list[Candidate]:
+    """Every remaining candidate scanned on top of ``effects``; in round one all are fitted and
+    cross-validated, later the ``later_full_fits`` the scan ranks first (a round's cost bound).
+    Each candidate's evidence is counted with the autocorrelation of the residual it leaves (as an
+    F-test takes the dispersion from the larger model)."""
+    base_sens = sensitivity(ev, effects) if effects else None
+    nll_now = ev.nll(ev.sim(effects))
+    scans = {n: scan(ev, effects, n, base_sens) for n in remaining}
+    order = sorted(remaining, key=lambda n: float(np.min(scans[n].nll)))
+    k = len(order) if round_ == 1 else policy.later_full_fits
+    out = []
+    for n in order[:k]:
+        if nll_now - float(np.min(scans[n].nll)) <= 0 or (out and ev.work > policy.work_budget):
+            continue
+        fit = fit_candidate(ev, effects, n, folds, scans[n])
+        out.append(Candidate(fit=fit, round=round_, evidence=evidence(fit, residual_taus(ev, fit.effects), ev.meas.n),
+                             charge=charge(n, policy), share=structure_share(fit, ev.floor),
+                             min_share=policy.min_heldout_share, nameable=nameable(fit.effect, policy)))
+    # ranked by one likelihood (the held-out nll each removes, the same for every candidate of the round)
+    out.sort(key=lambda c: -c.fit.heldout_nll_gain)
+    return out
+
+
+def _forward(ev: Evaluator, names: tuple[str, ...], folds, policy: DiscoveryPolicy,
+             start: Candidate | None, first_round: list[Candidate]) -> _Run:
+    effects: tuple[Effect, ...] = ()
+    rounds: list[list[Candidate]] = []
+    net = 0.0
+    if start is not None:
+        effects, net = start.fit.effects, start.evidence - start.charge
+        rounds.append([replace(c, accepted=c is start) for c in first_round])
+    while len(effects) < policy.max_effects and ev.work <= policy.work_budget:
+        remaining = [n for n in names if n not in {e.name for e in effects}]
+        if not remaining:
+            break
+        tried = _round(ev, effects, remaining, folds, len(effects) + 1, policy)
+        rounds.append(tried)
+        adopt = next((c for c in tried if c.clears), None)
+        if adopt is None:
+            break
+        adopt.accepted = True
+        effects, net = adopt.fit.effects, net + adopt.evidence - adopt.charge
+    return _Run(effects=effects, rounds=rounds, net=net)
+
+
+def _prune(ev: Evaluator, effects: tuple[Effect, ...], folds, policy: DiscoveryPolicy,
+           taus: dict[str, float]) -> tuple[Effect, ...]:
+    """Backward elimination by the same criterion: an effect whose held-out gain, the others refitted
+    without it, no longer clears its charge is dropped (the weakest first)."""
+    while len(effects) > 1:
+        full = heldout_nll(ev, effects, folds, taus)
+        trials = []
+        for i, e in enumerate(effects):
+            rest = joint_fit(ev, effects[:i] + effects[i + 1:])
+            trials.append((heldout_nll(ev, rest, folds, taus) - full - charge(e.name, policy), i, rest))
+        gain, i, rest = min(trials, key=lambda t: t[0])
+        if gain > 0:
+            break
+        effects = rest
+    return effects
+
+
+def _zero_beside_structure(effect: Effect, ex_after: dict[str, float], policy: DiscoveryPolicy) -> bool:
+    signal = effect.PARAMS[0].zero_of
+    return bool(signal) and any(x > policy.structure_floors for s, x in ex_after.items() if s != signal)
+
+
+def _settled(meas: Measurement, effects: tuple[Effect, ...]) -> Measurement:
+    spec = meas.spec(effects)
+    probe = Evaluator(meas, noise_floor(meas))
+    return settle_switches(meas, lambda m: probe.nll(m.replay(spec)))
+
+
+def _search(meas: Measurement, names: tuple[str, ...], policy: DiscoveryPolicy) -> Selection:
+    floor = noise_floor(meas)
+    ev = Evaluator(meas, floor)
+    folds = folds_by_cycle(meas)
+    plain = _forward(ev, names, folds, policy, None, [])
+    runs = [plain]
+    first = plain.rounds[0] if plain.rounds else []
+    # other starts only where the plain run leaves structure (a wrong twin first leaves its partner's pattern);
+    # after a reset every trial fits a counter zero too: one run only
+    if meas.angle_reference_known and max(excess(ev, plain.effects).values()) > policy.structure_floors:
+        for c in [c for c in first if c.clears and not c.accepted][:policy.starts - 1]:
+            if ev.work > policy.total_work_budget:
+                break
+            runs.append(_forward(ev, names, folds, policy, c, first))
+    # one likelihood for every model compared: the residual correlation of the best-fitting final model
+    taus = residual_taus(ev, plain.effects)
+    null = heldout_nll(ev, (), folds, taus)
+    best = min(runs, key=lambda r: heldout_nll(ev, r.effects, folds, taus) - null
+               + sum(charge(e.name, policy) for e in r.effects))
+    adopted = {e.name for r in runs for e in r.effects}
+    effects = _prune(ev, best.effects, folds, policy, taus)
+    refine_start(ev, effects)
+    ex_after = excess(ev, effects)
+    if unreadable := [e for e in effects if _zero_beside_structure(e, ex_after, policy)]:
+        effects = joint_fit(ev, tuple(e for e in effects if e not in unreadable))
+        refine_start(ev, effects)
+        ex_after = excess(ev, effects)
+    structured = max(ex_after.values()) > policy.structure_floors
+    verdict = "unexplained" if structured else "explained" if effects else "none"
+    spans = effect_intervals(held_start_sensitivity(ev, effects), effects) if effects else []
+    return Selection(effects=effects, verdict=verdict, rounds=best.rounds, floor=floor,
+                     excess_before=excess(ev, ()), excess_after=ex_after, near_tie=_near_tie(best.rounds, policy),
+                     simulations=ev.simulations, failures=ev.failures, command_before=ev.command_for(()),
+                     command_after=ev.command_for(effects), stopped_for_time=ev.work > policy.work_budget,
+                     work=ev.work, pruned=sorted(adopted - {e.name for e in effects}), intervals=spans,
+                     meas=meas, policy=policy)
+
+
+def _near_tie(rounds: list[list[Candidate]], policy: DiscoveryPolicy) -> dict | None:
+    """The first round whose runner-up's net evidence is within ``policy.near_tie`` of the winner's."""
+    for rnd in rounds:
+        chosen = next((c for c in rnd if c.accepted), None)
+        runner = next((c for c in rnd if c is not chosen and c.clears), None)
+        if chosen is None or runner is None:
+            continue
+        if chosen.evidence - runner.evidence <= policy.near_tie * chosen.charge:
+            return {"round": chosen.round, "chosen": chosen.name, "runner_up": runner.name,
+                    "scores": {chosen.name: chosen.evidence, runner.name: runner.evidence},
+                    "runner_up_accepted": False}
+    return None
+
+
+def select(meas: Measurement, names: tuple[str, ...] | None = None,
+           policy: DiscoveryPolicy = DEFAULT_POLICY) -> Selection:
+    """Discovery on one recording (replay fits; the closed loop is confirmed by the caller).
+
+    Inferred switches a sample apart are nuisances: settled by the base model first, and, when
+    that leaves structure and effects were found, again by the model with them (the run that
+    leaves less structure is kept)."""
+    names = tuple(CATALOGUE) if names is None else names
+    if not meas.angle_reference_known:
+        names = tuple(n for n in names if not only_a_constant_torque(meas, n))
+    if not ambiguous_switches(meas):
+        return _search(meas, names, policy)
+    first = _search(_settled(meas, ()), names, policy)
+    if first.verdict != "unexplained" or not first.effects:
+        return first
+    again = _settled(meas, first.effects)
+    if np.array_equal(again.dir, first.meas.dir):
+        return first
+    second = _search(again, names, policy)
+    return second if max(second.excess_after.values()) < max(first.excess_after.values()) else first
