@@ -15,10 +15,10 @@ The workflow (issue 6), module by module:
   within its bounds (coarse geometric scan, then Brent), earlier effects refitted with it, an
   interval from the joint Gauss-Newton information (autocorrelation-corrected, widened by the
   held-out folds' spread), and held-out scores (fit on half the cycles, score the other half).
-- ``selection``: the evidence rules (improvement against the noise, held out, BIC, interval
-  excluding "no effect", the motivating residual pattern removed), stacking while evidence
-  holds, near ties, and the verdict ``explained`` / ``none`` / ``unexplained``; every threshold they
-  decide by is a field of ``policy.DiscoveryPolicy``, passed to ``select(meas, policy=...)``.
+- ``search``: forward selection by one criterion, the held-out (cross-validated) likelihood an
+  effect removes, in independent samples, charged per parameter; round one's best candidates as
+  further starts; backward elimination by the same criterion; the verdict ``explained`` / ``none`` /
+  ``unexplained``.  Every threshold is a field of ``policy.DiscoveryPolicy``.
 - ``stage``: the pure ``discover(kinematics, config, name)`` and the JSON of docs/FORMAT.md; MSEs
   before/after are computed by validation's own code (``simulate_both`` + ``signal_errors``).
 - ``report``: JSON, ``[effects]`` snippet, Markdown with PNGs, Rerun recording.

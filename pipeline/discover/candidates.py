@@ -300,7 +300,7 @@ def fit_candidate(ev: Evaluator, base: tuple[Effect, ...], name: str,
     if nll_all > at_grid:
         value, nll_all = float(sc.grid[i]), at_grid
     effects = (*moved, make(name, value))
-    if base:
+    if base or len(CATALOGUE[name].PARAMS) > 1:
         effects = joint_fit(ev, effects)                # every parameter of the candidate too, not only its first
         moved, value = effects[:-1], value_of(effects[-1])
         nll_all = ev.nll(ev.sim(effects))

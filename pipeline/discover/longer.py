@@ -20,11 +20,10 @@ import pandas as pd
 
 from pipeline.config import RigConfig
 from pipeline.discover.candidates import Evaluator
-from pipeline.discover.evidence import nameable_size
 from pipeline.discover.joint import effect_intervals, joint_fit
 from pipeline.discover.measurement import MAX_SAMPLES, measurement_from_kinematics
 from pipeline.discover.residuals import noise_floor
-from pipeline.discover.selection import Selection, excess
+from pipeline.discover.search import Selection, excess, nameable
 from pipeline.discover.start_refit import held_start_sensitivity, refine_start
 
 REFIT_SAMPLES = 2 * MAX_SAMPLES
@@ -41,7 +40,7 @@ def refit_on_more_samples(sel: Selection, kin: pd.DataFrame, config: RigConfig, 
     longer = measurement_from_kinematics(kin, config, name, zero_samples=zero_samples, max_samples=REFIT_SAMPLES)
     ev = Evaluator(longer, noise_floor(longer, longer.replay(longer.spec())))
     effects = joint_fit(ev, sel.effects)
-    if effects == sel.effects or not all(nameable_size(e.name, e.value, sel.policy) for e in effects):
+    if effects == sel.effects or not all(nameable(e, sel.policy) for e in effects):
         return replace(sel, work=sel.work + ev.work)
     on_window = Evaluator(window, sel.floor)
     refine_start(on_window, effects)

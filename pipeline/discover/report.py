@@ -161,35 +161,19 @@ OUTCOME_HATCHES = {"screened out": "////"}
 
 
 def outcomes(d: Discovery) -> list[str]:
-    """Per candidate of every round (``discovery_json``'s order): what became of it.
-
-    Several candidates of a round can pass every check; the round adopts the first
-    of them (``evidence.adoption_rank``), the others are "passed, not chosen".  A later run
-    that starts from round one's two best (``selection._from_round_ones_two_best``) adopts the second
-    without a round choosing it: a final effect no round chose is credited to the first
-    candidate of its name that passed.
-    """
+    """Per candidate of every round (``discovery_json``'s order): what became of it.  A round adopts
+    the candidate that removes the most held-out likelihood among those that clear every check; the
+    others that clear them are "passed, not chosen"."""
     final = {e.name for e in d.effects}
-    name_of = [[a.fit.name if hasattr(a, "fit") else a.name for a in rnd] for rnd in d.selection.rounds]
-    chosen = [next((i for i, a in enumerate(rnd) if a.accepted), None) for rnd in d.selection.rounds]
-    credited = {names[i] for names, i in zip(name_of, chosen) if i is not None} & final
-    started = {}                                # final effects no round chose: where they first passed
-    for r, rnd in enumerate(d.selection.rounds):
-        for i, a in enumerate(rnd):
-            if getattr(a, "accepted", False) and name_of[r][i] in final - credited:
-                started.setdefault(name_of[r][i], (r, i))
     out = []
-    for r, rnd in enumerate(d.selection.rounds):
-        for i, a in enumerate(rnd):
-            name = name_of[r][i]
+    for rnd in d.selection.rounds:
+        for a in rnd:
             if not hasattr(a, "fit"):
                 out.append("screened out")
-            elif i == chosen[r]:
-                out.append("adopted" if name in final else "adopted, later pruned")
-            elif started.get(name) == (r, i):
-                out.append("adopted")
+            elif a.accepted:
+                out.append("adopted" if a.fit.name in final else "adopted, later pruned")
             else:
-                out.append("passed, not chosen" if a.accepted else "rejected")
+                out.append("passed, not chosen" if a.clears else "rejected")
     return out
 
 
@@ -203,11 +187,9 @@ def candidate_reason(a, fate: str) -> str:
 
 
 def score_limit(scores: list[float]) -> float:
-    """A round's x range: 0..1.05 when a candidate removed much of the structure, else fitted to the
-    round's best (a round whose scores are all ~0.001 drew zero-length bars on 0..1)."""
+    """A round's x range, fitted to the round's best score (a round whose scores are all small would
+    draw zero-length bars on a fixed axis)."""
     top = max(scores, default=0.0)
-    if top >= 0.5:
-        return 1.05
     return max(0.01, nice_ceiling(1.15 * top)) if top > 0.0 else 0.01
 
 
@@ -218,7 +200,7 @@ def nice_ceiling(x: float) -> float:
 
 
 def candidates_figure(d: Discovery):
-    """Each candidate's share of held-out structure removed, per round: one bar per candidate,
+    """Each candidate's held-out evidence, per round: one bar per candidate,
     coloured (and, screened out, hatched) by what became of it, labelled with its name, the reason
     and its score; each round's axis fitted to its scores."""
     from matplotlib.figure import Figure
@@ -244,10 +226,12 @@ def candidates_figure(d: Discovery):
         ax.set_xlim(0, hi)
         for yi, sc in zip(y, scores):
             ax.text(min(sc, hi) + 0.01 * hi, yi, f"{sc:.3f}", va="center", fontsize=7)
-        ax.set_title(f"round {rnd[0].round}: share of held-out structure removed"
-                     + ("" if hi > 1 else f" (axis to {hi:g})"), fontsize=9, y=1.0)
+        charge = d.selection.policy.evidence_per_parameter
+        if charge < hi:
+            ax.axvline(charge, color="0.3", linestyle=":", linewidth=0.8)       # one parameter's charge
+        ax.set_title(f"round {rnd[0].round}: held-out evidence (dotted: one parameter's charge)", fontsize=9, y=1.0)
         ax.tick_params(labelsize=8)
-    axes[-1].set_xlabel("share of held-out structure removed (1 = all of it)", fontsize=8)
+    axes[-1].set_xlabel("held-out negative log-likelihood removed, in independent samples", fontsize=8)
     order = [f for f in OUTCOME_COLORS if f in seen]
     fig.legend([Patch(facecolor=OUTCOME_COLORS[f], edgecolor="0.35", hatch=OUTCOME_HATCHES.get(f, ""))
                 for f in order], order, loc="upper center", ncols=len(order), fontsize=8, frameon=False)
@@ -296,7 +280,7 @@ def markdown(d: Discovery, doc: dict) -> str:
     lines += ["", "## Residual RMS by state and after events (noise standard deviations; before -> after)", ""]
     lines += [f"![localisation]({FILES['localisation_png']})", ""] + _tables_md(d)
     lines += ["", "## Candidates", "",
-              "| round | candidate | score | value | ~95 % interval | delta BIC | outcome |",
+              "| round | candidate | held-out evidence | value | ~95 % interval | charge | outcome |",
               "|---|---|---|---|---|---|---|"]
     for c, fate in zip(doc["candidates"], outcomes(d)):
         p, v = next(iter(c["parameters"].items()))
@@ -306,8 +290,10 @@ def markdown(d: Discovery, doc: dict) -> str:
                   "passed, not chosen": "passed every check, not chosen (a better candidate was adopted)",
                   }.get(fate, fate)
         lines.append(f"| {c['round']} | `{c['name']}` | {c['score']:.3f} | {p} = {_fmt(v)} | "
-                     f"[{_fmt(lo)}, {_fmt(hi)}] | {_fmt(c.get('delta_bic', float('nan')))} | {result} |")
-    lines += ["", "Score: share of the held-out structure (MSE above the noise floor) the candidate removes.", "",
+                     f"[{_fmt(lo)}, {_fmt(hi)}] | {_fmt(c.get('charge', float('nan')))} | {result} |")
+    lines += ["", "Held-out evidence: the negative log-likelihood the candidate removes on cycles it was not fitted "
+              "on, in independent samples; an effect is adopted when it exceeds its charge (per parameter), removes "
+              "at least half of some signal's held-out structure, and is of a nameable size.", "",
               f"![signals]({FILES['signals_png']})", "", f"![residuals]({FILES['residuals_png']})", "",
               f"![candidates]({FILES['candidates_png']})", ""]
     return "\n".join(lines)

@@ -60,8 +60,13 @@ class Candidate:
         return self.evidence
 
     @property
+    def checks(self) -> dict[str, bool]:
+        return {"evidence": bool(self.evidence > self.charge), "share": bool(self.share >= self.min_share),
+                "size": bool(self.nameable)}
+
+    @property
     def clears(self) -> bool:
-        return self.evidence > self.charge and self.share >= self.min_share and self.nameable
+        return all(self.checks.values())
 
     min_share: float = 0.5
     nameable: bool = True
@@ -71,16 +76,39 @@ class Candidate:
         return {"name": f.name, "score": round(self.evidence, 3), "round": self.round,
                 "parameters": f.effect.parameters, "units": dict(CATALOGUE[f.name].UNITS),
                 "interval": {f.parameter: list(f.interval)}, "fold_estimates": {f.parameter: list(f.fold_values)},
-                "heldout_evidence": self.evidence, "charge": self.charge, "heldout_nll_gain": f.heldout_nll_gain,
+                "heldout_evidence": self.evidence, "charge": self.charge, "structure_share": self.share,
+                "heldout_nll_gain": f.heldout_nll_gain,
                 "heldout_mse_before": f.heldout_mse_before, "heldout_mse_after": f.heldout_mse_after,
-                "clears_charge": self.clears, "accepted": self.accepted}
+                "checks": self.checks,
+                "accepted": self.accepted}
+
+
+@dataclass
+class Screened:
+    """A candidate not fitted this round: its coarse scan gained nothing, or ranked it below the
+    ``later_full_fits`` fitted in a later round."""
+
+    name: str
+    round: int
+    value: float            # best scan point
+    scan_gain: float        # nll decrease there, all samples
+
+    accepted = False
+    clears = False
+    score = 0.0
+
+    def to_json(self) -> dict:
+        p = CATALOGUE[self.name].PARAMS[0].name
+        return {"name": self.name, "score": 0.0, "round": self.round, "parameters": {p: self.value},
+                "units": dict(CATALOGUE[self.name].UNITS), "scan_nll_gain": self.scan_gain,
+                "screened_out": True, "accepted": False}
 
 
 @dataclass
 class Selection:
     effects: tuple[Effect, ...]
     verdict: str
-    rounds: list[list[Candidate]]
+    rounds: list[list[Candidate | Screened]]
     floor: dict[str, float]
     excess_before: dict[str, float]       # replay MSE above noise, in noise variances, base model
     excess_after: dict[str, float]        # same for the final model
@@ -112,13 +140,34 @@ def evidence(fit: Fit, taus: dict[str, float], n: int) -> float:
     return float(total)
 
 
-def structure_share(fit: Fit, floor: dict[str, float]) -> float:
+# the noise floor's estimate has relative variance ~3/n (``estimate.noise``: robust differences): a measured fact
+FLOOR_RELATIVE_VARIANCE = 3.0
+
+
+def structure_share(fit: Fit, floor: dict[str, float], n: int, policy: DiscoveryPolicy) -> float:
     """The largest share of one signal's held-out structure (MSE above its noise) the candidate removes:
     an effect that is there removes the pattern it makes; one that buys likelihood while most of the
-    pattern stays is absorbing the misfit of something else."""
-    shares = [(b - fit.heldout_mse_after.get(s, np.inf)) / (b - floor[s])
-              for s, b in fit.heldout_mse_before.items() if b > floor[s]]
-    return max(shares, default=0.0)
+    pattern stays is absorbing the misfit of something else.  A sensor's zero moves its signal alone, so
+    it is not asked for the structure the floor's own error may hold (``floor_sigmas`` of it)."""
+    own = CATALOGUE[fit.name].PARAMS[0].zero_of
+    shares = []
+    for s, b in fit.heldout_mse_before.items():
+        structure, gain = b / floor[s] - 1.0, (b - fit.heldout_mse_after.get(s, np.inf)) / floor[s]
+        if s == own:
+            structure = max(structure - policy.floor_sigmas * np.sqrt(FLOOR_RELATIVE_VARIANCE / n), gain)
+        if structure > 0:
+            shares.append(gain / structure)
+    return float(max(shares, default=0.0))
+
+
+def beyond_zero_error(fit: Fit, meas: Measurement, floor: dict[str, float], policy: DiscoveryPolicy) -> bool:
+    """Whether a sensor's offset stands ``zero_sigmas`` clear of the error of the zero ingest read off rest
+    readings (a nuisance: their mean, with the noise floor over their number as its variance)."""
+    p = CATALOGUE[fit.name].PARAMS[0]
+    rest = meas.zero_samples.get(p.zero_of, 0)
+    if not rest or p.zero_of not in floor:
+        return True
+    return abs(fit.value - p.absent) > policy.zero_sigmas * float(np.sqrt(floor[p.zero_of] / rest))
 
 
 def residual_taus(ev: Evaluator, effects: tuple[Effect, ...]) -> dict[str, float]:
@@ -176,7 +225,7 @@ def nameable(effect: Effect, policy: DiscoveryPolicy) -> bool:
 
 
 def _round(ev: Evaluator, effects: tuple[Effect, ...], remaining: list[str], folds, round_: int,
-           policy: DiscoveryPolicy) -> list[Candidate]:
+           policy: DiscoveryPolicy) -> tuple[list[Candidate], list[Screened]]:
     """Every remaining candidate scanned on top of ``effects``; in round one all are fitted and
     cross-validated, later the ``later_full_fits`` the scan ranks first (a round's cost bound).
     Each candidate's evidence is counted with the autocorrelation of the residual it leaves (as an
@@ -186,17 +235,21 @@ def _round(ev: Evaluator, effects: tuple[Effect, ...], remaining: list[str], fol
     scans = {n: scan(ev, effects, n, base_sens) for n in remaining}
     order = sorted(remaining, key=lambda n: float(np.min(scans[n].nll)))
     k = len(order) if round_ == 1 else policy.later_full_fits
-    out = []
-    for n in order[:k]:
-        if nll_now - float(np.min(scans[n].nll)) <= 0 or (out and ev.work > policy.work_budget):
+    out: list[Candidate] = []
+    screened = []
+    for i, n in enumerate(order):
+        gain = nll_now - float(np.min(scans[n].nll))
+        if i >= k or gain <= 0 or (out and ev.work > policy.work_budget):
+            screened.append(Screened(n, round_, float(scans[n].grid[np.argmin(scans[n].nll)]), gain))
             continue
         fit = fit_candidate(ev, effects, n, folds, scans[n])
         out.append(Candidate(fit=fit, round=round_, evidence=evidence(fit, residual_taus(ev, fit.effects), ev.meas.n),
-                             charge=charge(n, policy), share=structure_share(fit, ev.floor),
-                             min_share=policy.min_heldout_share, nameable=nameable(fit.effect, policy)))
+                             charge=charge(n, policy), share=structure_share(fit, ev.floor, ev.meas.n, policy),
+                             min_share=policy.min_heldout_share,
+                             nameable=nameable(fit.effect, policy) and beyond_zero_error(fit, ev.meas, ev.floor, policy)))
     # ranked by one likelihood (the held-out nll each removes, the same for every candidate of the round)
     out.sort(key=lambda c: -c.fit.heldout_nll_gain)
-    return out
+    return out, screened
 
 
 def _forward(ev: Evaluator, names: tuple[str, ...], folds, policy: DiscoveryPolicy,
@@ -206,13 +259,13 @@ def _forward(ev: Evaluator, names: tuple[str, ...], folds, policy: DiscoveryPoli
     net = 0.0
     if start is not None:
         effects, net = start.fit.effects, start.evidence - start.charge
-        rounds.append([replace(c, accepted=c is start) for c in first_round])
+        rounds.append([replace(c, accepted=c is start) if isinstance(c, Candidate) else c for c in first_round])
     while len(effects) < policy.max_effects and ev.work <= policy.work_budget:
         remaining = [n for n in names if n not in {e.name for e in effects}]
         if not remaining:
             break
-        tried = _round(ev, effects, remaining, folds, len(effects) + 1, policy)
-        rounds.append(tried)
+        tried, screened = _round(ev, effects, remaining, folds, len(effects) + 1, policy)
+        rounds.append([*tried, *screened])
         adopt = next((c for c in tried if c.clears), None)
         if adopt is None:
             break
@@ -259,7 +312,7 @@ def _search(meas: Measurement, names: tuple[str, ...], policy: DiscoveryPolicy) 
     # other starts only where the plain run leaves structure (a wrong twin first leaves its partner's pattern);
     # after a reset every trial fits a counter zero too: one run only
     if meas.angle_reference_known and max(excess(ev, plain.effects).values()) > policy.structure_floors:
-        for c in [c for c in first if c.clears and not c.accepted][:policy.starts - 1]:
+        for c in [c for c in first if isinstance(c, Candidate) and c.clears and not c.accepted][:policy.starts - 1]:
             if ev.work > policy.total_work_budget:
                 break
             runs.append(_forward(ev, names, folds, policy, c, first))
@@ -291,7 +344,7 @@ def _near_tie(rounds: list[list[Candidate]], policy: DiscoveryPolicy) -> dict | 
     """The first round whose runner-up's net evidence is within ``policy.near_tie`` of the winner's."""
     for rnd in rounds:
         chosen = next((c for c in rnd if c.accepted), None)
-        runner = next((c for c in rnd if c is not chosen and c.clears), None)
+        runner = next((c for c in rnd if c is not chosen and isinstance(c, Candidate) and c.clears), None)
         if chosen is None or runner is None:
             continue
         if chosen.evidence - runner.evidence <= policy.near_tie * chosen.charge:

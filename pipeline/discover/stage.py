@@ -23,7 +23,7 @@ from pipeline.discover.base_free import BaseFreeCheck, check_with_base_free
 from pipeline.discover.declared import check_declared
 from pipeline.discover.longer import refit_on_more_samples
 from pipeline.discover.policy import DEFAULT_POLICY, DiscoveryPolicy
-from pipeline.discover.selection import Selection, select
+from pipeline.discover.search import Selection, select
 from pipeline.model.effects import Effect
 from pipeline.model.params import PlantSpec
 from pipeline.model.simulate import MAX_LOST_ROWS, SimResult

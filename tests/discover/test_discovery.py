@@ -178,20 +178,3 @@ def test_a_policy_with_fewer_effects_names_fewer(tmp_path):
     assert {e.name for e in full.effects} == {"viscous_friction", "current_sensor_offset"}
     assert len(one.effects) == 1 and one.effects[0].name in {"viscous_friction", "current_sensor_offset"}
 
-
-@LONG
-def test_a_later_run_on_the_same_recording_gets_only_what_the_total_budget_leaves(tmp_path):
-    """The runner-up's rounds (and the rounds after resettled switches) share one budget with the first
-    run, so the slowest recording is bounded as a whole: a run started with the total already spent
-    stops after its first round, and the selection reports the work of both."""
-    from pipeline.discover import selection
-
-    hidden = (_effect("viscous_friction", 3e-4), _effect("current_sensor_offset", 0.08))
-    kin, rig, _ = rig_kinematics(hidden, seed=2, work=tmp_path)
-    meas = measurement_from_kinematics(kin, rig, "pair")
-    names = tuple(selection.CATALOGUE)
-    fresh = selection._forward(meas, names, DEFAULT_POLICY)
-    assert not fresh.stopped_for_time and len(fresh.rounds) >= 2 and fresh.work > 0
-    late = selection._forward(meas, names, DEFAULT_POLICY, spent=DEFAULT_POLICY.total_work_budget)
-    assert late.stopped_for_time and len(late.rounds) == 1
-    assert late.work > DEFAULT_POLICY.total_work_budget

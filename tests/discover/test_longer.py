@@ -30,7 +30,7 @@ def test_two_effects_on_a_ridge_are_pinned_down_by_the_cycles_the_search_did_not
 def test_a_recording_the_search_saw_whole_is_not_refitted(tmp_path):
     """Draw 38 (399 samples): nothing beyond the window, so the selection is handed back as it was, and
     a search that ended unexplained is not refitted either (its values are not the answer)."""
-    from pipeline.discover.selection import Selection
+    from pipeline.discover.search import Selection
 
     draw, doc, d = _randomised(38, tmp_path, discovery=True)
     assert doc["samples"]["values_refitted_on"] == doc["samples"]["used"] == doc["samples"]["in_recording"]

@@ -178,21 +178,10 @@ def test_an_effect_the_later_ones_made_redundant_frees_a_round(tmp_path):
     _named_right(*_randomised(196, tmp_path))
 
 
-def test_rounds_that_leave_structure_are_run_again_from_round_ones_two_best(tmp_path):
-    """Randomised draw 275 (seed 15): viscous friction beside softer springs (k 0.87).  Round one took
-    Coulomb friction, which fits best alone, then a loop delay, and left the recording unexplained;
-    from round one's two best together (Coulomb and viscous friction) the Coulomb friction is pruned
-    and the springs open in the next round.  The report credits the viscous friction, which no round
-    chose, as adopted in round one, and Coulomb, which round one chose, as pruned."""
-    from pipeline.discover.report import outcomes
-
-    draw, doc, d = _randomised(275, tmp_path, discovery=True)
-    _named_right(draw, doc)
-    fates = outcomes(d)
-    adopted = [(c["round"], c["name"]) for c, fate in zip(doc["candidates"], fates) if fate == "adopted"]
-    assert sorted(adopted) == [(1, "viscous_friction"), (3, "spring_stiffness")], adopted
-    assert ("coulomb_friction", "adopted, later pruned") in [(c["name"], fate) for c, fate in
-                                                             zip(doc["candidates"], fates) if c["round"] == 1]
+def test_a_twin_picked_first_gives_way_to_the_pair_that_is_there(tmp_path):
+    """Randomised draw 275 (seed 15): viscous friction beside softer springs (k 0.87).  Coulomb friction
+    fits best alone; the rounds from round one's other candidates find the pair that is there."""
+    _named_right(*_randomised(275, tmp_path))
 
 
 def test_an_adopted_effect_is_tried_against_candidates_an_earlier_round_passed(tmp_path):
@@ -291,7 +280,7 @@ def test_an_automatic_current_zero_off_by_its_own_error_is_not_named_an_offset(t
     assert not draw.effects and draw.setup.zero_v == "auto"
     assert doc["verdict"] == "none" and doc["effects"] == []
     offset = next(c for c in doc["candidates"] if c["name"] == "current_sensor_offset")
-    assert abs(offset["parameters"]["I0"]) > 0.03 and not offset["checks"]["interval_excludes_null"]
+    assert abs(offset["parameters"]["I0"]) > 0.03 and not offset.get("accepted")
 
 
 def test_a_sensor_offset_is_not_named_beside_an_angle_the_model_cannot_explain(tmp_path):

@@ -9,7 +9,7 @@ from pipeline.discover.candidates import Evaluator
 from pipeline.discover.measurement import measurement_from_kinematics
 from pipeline.discover.residuals import noise_floor
 from pipeline.discover.policy import DEFAULT_POLICY
-from pipeline.discover.selection import excess
+from pipeline.discover.search import excess
 from pipeline.discover.start_refit import refine_start
 from pipeline.ingest.stage import ingest_recording
 from pipeline.rig.randomised import randomised_setup

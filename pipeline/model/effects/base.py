@@ -26,7 +26,7 @@ import numpy as np
 
 from pipeline.model.params import PlantSpec
 
-# Where an effect's residual fingerprint lives (``pipeline.discover.evidence.signature_energy``).
+# Where an effect's residual fingerprint lives (``pipeline.discover.residuals.signatures``).
 SIGNATURES = ("everywhere", "after_switch", "low_speed", "after_zero_crossing", "current_bias")
 
 REGISTRY: dict[str, type["Effect"]] = {}
