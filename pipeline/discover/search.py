@@ -30,8 +30,8 @@ from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
-from pipeline.discover.candidates import Evaluator, Fit, fit_candidate, folds_by_cycle, scan
-from pipeline.discover.joint import effect_intervals, gauss_newton, joint_fit, moved_effects, sensitivity
+from pipeline.discover.candidates import Evaluator, Fit, fit_candidate, fold_fit, folds_by_cycle, scan
+from pipeline.discover.joint import effect_intervals, joint_fit, sensitivity
 from pipeline.discover.measurement import Measurement, ambiguous_switches, settle_switches
 from pipeline.discover.policy import DEFAULT_POLICY, DiscoveryPolicy
 from pipeline.discover.residuals import noise_floor, residuals
@@ -174,6 +174,15 @@ def residual_taus(ev: Evaluator, effects: tuple[Effect, ...]) -> dict[str, float
     return {s: autocorrelation_time(r) for s, r in residuals(ev.meas, ev.sim(effects)).items()}
 
 
+def room(ev: Evaluator, effects: tuple[Effect, ...]) -> float:
+    """The most evidence any further effect could show: the held-out nll of bringing every signal's
+    residual down to its noise floor, counted as the residual's own correlation counts it.  Where even
+    that cannot clear a charge, no round is run."""
+    res = residuals(ev.meas, ev.sim(effects))
+    return float(sum(0.5 * len(r) * np.log(max(float(np.mean(r * r)) / ev.floor[s], 1.0)) / autocorrelation_time(r)
+                     for s, r in res.items()))
+
+
 def charge(name: str, policy: DiscoveryPolicy) -> float:
     return policy.evidence_per_parameter * len(CATALOGUE[name].PARAMS)
 
@@ -184,10 +193,7 @@ def heldout_nll(ev: Evaluator, effects: tuple[Effect, ...], folds, taus: dict[st
     total = 0.0
     sens = sensitivity(ev, effects) if effects else None
     for train in folds:
-        trial = effects
-        if sens is not None:
-            step, _ = gauss_newton(sens.r0, sens.jac, train)
-            trial = moved_effects(effects, step)
+        trial = effects if sens is None else fold_fit(ev, effects, sens, train)
         res = residuals(ev.meas, ev.sim(trial))
         for s, r in res.items():
             x = r[~train]
@@ -260,7 +266,8 @@ def _forward(ev: Evaluator, names: tuple[str, ...], folds, policy: DiscoveryPoli
     if start is not None:
         effects, net = start.fit.effects, start.evidence - start.charge
         rounds.append([replace(c, accepted=c is start) if isinstance(c, Candidate) else c for c in first_round])
-    while len(effects) < policy.max_effects and ev.work <= policy.work_budget:
+    while len(effects) < policy.max_effects and ev.work <= policy.work_budget and room(ev, effects) > min(
+            charge(n, policy) for n in names):
         remaining = [n for n in names if n not in {e.name for e in effects}]
         if not remaining:
             break
@@ -312,11 +319,12 @@ def _search(meas: Measurement, names: tuple[str, ...], policy: DiscoveryPolicy) 
     # other starts only where the plain run leaves structure (a wrong twin first leaves its partner's pattern);
     # after a reset every trial fits a counter zero too: one run only
     if meas.angle_reference_known and max(excess(ev, plain.effects).values()) > policy.structure_floors:
-        for c in [c for c in first if isinstance(c, Candidate) and c.clears and not c.accepted][:policy.starts - 1]:
+        others = [c for c in first if isinstance(c, Candidate) and not c.accepted and c.clears]
+        for c in others[:policy.starts - 1]:
             if ev.work > policy.total_work_budget:
                 break
             runs.append(_forward(ev, names, folds, policy, c, first))
-    # one likelihood for every model compared: the residual correlation of the best-fitting final model
+    # one likelihood for every model compared: the residual correlation the plain run leaves
     taus = residual_taus(ev, plain.effects)
     null = heldout_nll(ev, (), folds, taus)
     best = min(runs, key=lambda r: heldout_nll(ev, r.effects, folds, taus) - null
