@@ -319,7 +319,11 @@ def _search(meas: Measurement, names: tuple[str, ...], policy: DiscoveryPolicy) 
     # other starts only where the plain run leaves structure (a wrong twin first leaves its partner's pattern);
     # after a reset every trial fits a counter zero too: one run only
     if meas.angle_reference_known and max(excess(ev, plain.effects).values()) > policy.structure_floors:
-        others = [c for c in first if isinstance(c, Candidate) and not c.accepted and c.clears]
+        # round one's others that clear every check; where none does, those that fail only the evidence (the
+        # held-out likelihood of a start is judged on the model it leads to: partners can be needed together)
+        others = [c for c in first if isinstance(c, Candidate) and not c.accepted
+                  and (c.clears if plain.effects else c.share >= c.min_share and c.nameable
+                       and c.fit.heldout_nll_gain > 0)]
         for c in others[:policy.starts - 1]:
             if ev.work > policy.total_work_budget:
                 break
