@@ -10,13 +10,21 @@ exceeds ``policy.evidence_per_parameter`` for each of them: an effect with two p
 charged twice.  Held-out data already charge an effect that fits noise (it predicts worse), so
 the charge only asks the evidence to be clear of chance.
 
+Beside its charge, a candidate must remove at least ``min_heldout_share`` of some signal's held-out
+structure (an effect that is there removes the pattern it makes; one that buys likelihood while the
+pattern stays is absorbing the misfit of something outside the catalogue), be of a nameable size
+(``min_size_share`` of its catalogue's typical size), and, a sensor's offset, stand clear of the
+error of a zero read off rest readings (a nuisance with a known variance).
+
 The search.  Round by round every remaining candidate is tried on top of the model found so far
-(all parameters of all effects refitted jointly); the best by the criterion is adopted while it
-clears its charge.  Round one's best candidates are several starts: the rounds run from each, and
-the model with the best criterion (gain less charges) is kept, because the first pick among
-near-twins (a softer spring and a heavier rack both slow the oscillation) is made before the
-partners are known.  Then each effect the others made redundant (its gain, with them refitted,
-no longer clears its charge) is dropped.
+(all parameters of all effects refitted jointly); of those that clear every check, the one that
+removes the most held-out likelihood is adopted.  A round is not run where even an effect that left
+only noise could not clear a charge (``room``).  Where the rounds leave structure, round one's other
+candidates are further starts: the rounds run from each, and the model with the best criterion
+(held-out likelihood less charges, one set of autocorrelation times for all) is kept, because the
+first pick among near-twins (a softer spring and a heavier rack both slow the oscillation) is made
+before the partners are known.  Then each effect the others made redundant (its gain, with them
+refitted, no longer clears its charge) is dropped.
 
 The verdict.  ``none`` when nothing is adopted and the recording is at its noise floor;
 ``explained`` when effects are adopted and what is left is within ``policy.structure_floors``
@@ -50,6 +58,8 @@ class Candidate:
     charge: float            # what its parameters cost: ``evidence_per_parameter`` each
     share: float             # the largest share of a signal's held-out structure it removes
     accepted: bool = False   # adopted in this round
+    min_share: float = 0.5   # ``policy.min_heldout_share``
+    nameable: bool = True    # of a nameable size, clear of a zero's error
 
     @property
     def name(self) -> str:
@@ -67,9 +77,6 @@ class Candidate:
     @property
     def clears(self) -> bool:
         return all(self.checks.values())
-
-    min_share: float = 0.5
-    nameable: bool = True
 
     def to_json(self) -> dict:
         f = self.fit
