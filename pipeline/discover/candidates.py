@@ -52,8 +52,9 @@ class Evaluator:
     """Replays a measurement under many models, caching by plant with I0 applied afterwards (a sensor
     offset changes nothing but the measured current), and the start estimated once per model."""
 
-    def __init__(self, meas: Measurement, floor: dict[str, float]) -> None:
+    def __init__(self, meas: Measurement, floor: dict[str, float], spent: int = 0) -> None:
         self.meas = meas
+        self.spent = spent                   # the work of the searches on the recording before this one
         self.floor = floor
         self._cache: dict[tuple[PlantSpec, tuple], SimResult] = {}
         self.simulations = 0
@@ -83,9 +84,9 @@ class Evaluator:
 
     @property
     def work(self) -> int:
-        """What this evaluator has cost, in simulated samples: its replays, and the start estimates of the
-        models it replayed (``START_RUN_COST`` per simulation of theirs)."""
-        return self._replayed + START_RUN_COST * (self.meas.start_runs - self._start_runs)
+        """What the search has cost, in simulated samples: the searches before this evaluator, its replays,
+        and the start estimates of the models it replayed (``START_RUN_COST`` per simulation of theirs)."""
+        return self.spent + self._replayed + START_RUN_COST * (self.meas.start_runs - self._start_runs)
 
     def use_command(self, spec: PlantSpec, command: np.ndarray | None) -> None:
         """Replay ``spec`` (without sensor offset) under ``command`` from now on (None: the chosen one)."""
@@ -331,12 +332,10 @@ def fit_candidate(ev: Evaluator, base: tuple[Effect, ...], name: str,
 
 def fold_fit(ev: Evaluator, effects: tuple[Effect, ...], sens: Sensitivity, train: np.ndarray) -> tuple[Effect, ...]:
     """``effects`` refitted on the ``train`` samples by one joint Gauss-Newton step from their fit on all
-    samples; kept only where it fits the training half better (a near-degenerate pair, such as a
-    heavier rack beside softer springs, can step far along its ridge and land worse, or where the
-    simulator fails: a fit never ends worse on its own data than where it started)."""
+    samples (each parameter's move within a trust region), unless the step lands where the simulator fails."""
     step, _ = gauss_newton(sens.r0, sens.jac, train)
     trial = moved_effects(effects, step)
-    return trial if ev.nll(ev.sim(trial), train) < ev.nll(ev.sim(effects), train) else effects
+    return trial if ev.nll(ev.sim(trial)) < FAILED_NLL else effects
 
 
 def folds_by_cycle(meas: Measurement) -> tuple[np.ndarray, np.ndarray]:

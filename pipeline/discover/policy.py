@@ -56,7 +56,7 @@ class DiscoveryPolicy:
     # (round one all of them): bounds a round's cost
     later_full_fits: int = 3
     # a run of the rounds fits a further candidate only within this work (``Evaluator.work``, ~0.6 us of
-    # CPU a unit: ~6 s) ...
+    # CPU a unit: ~6 s, more where the starts are event-driven) ...
     work_budget: int = 10_500_000
     # ... and further starts begin only within this: counted, not timed, so a busy machine gets the
     # same answer as an idle one

@@ -316,9 +316,11 @@ def _settled(meas: Measurement, effects: tuple[Effect, ...]) -> Measurement:
     return settle_switches(meas, lambda m: probe.nll(m.replay(spec)))
 
 
-def _search(meas: Measurement, names: tuple[str, ...], policy: DiscoveryPolicy) -> Selection:
+def _search(meas: Measurement, names: tuple[str, ...], policy: DiscoveryPolicy, spent: int = 0) -> Selection:
+    """The rounds, further starts, elimination and verdict on one settling of the switches; ``spent``: the
+    work of an earlier search on the recording (the budgets bound them together)."""
     floor = noise_floor(meas)
-    ev = Evaluator(meas, floor)
+    ev = Evaluator(meas, floor, spent)
     folds = folds_by_cycle(meas)
     plain = _forward(ev, names, folds, policy, None, [])
     runs = [plain]
@@ -389,7 +391,7 @@ def select(meas: Measurement, names: tuple[str, ...] | None = None,
     if first.verdict != "unexplained" or not first.effects:
         return first
     again = _settled(meas, first.effects)
-    if np.array_equal(again.dir, first.meas.dir):
+    if np.array_equal(again.dir, first.meas.dir) or first.work > policy.total_work_budget:
         return first
-    second = _search(again, names, policy)
+    second = _search(again, names, policy, spent=first.work)
     return second if max(second.excess_after.values()) < max(first.excess_after.values()) else first

@@ -215,7 +215,7 @@ def discovery_json(d: Discovery, recording: str) -> dict:
     if d.selection.stopped_for_time:
         out["stopped_for_time"] = ("the work budget was spent before the search ended: a further round, or a "
                                    "round's later candidates, were not tried (simulated samples, start estimates "
-                                   "included: about 6 CPU s a run, 7 s for all runs on the recording)")
+                                   "included: about 7 CPU s for all searches on the recording, more where its starts are event-driven)")
     if d.selection.failures:
         out["simulation_failures"] = len(d.selection.failures)
     return finite_or_none(out)
