@@ -271,7 +271,7 @@ def markdown(d: Discovery, doc: dict) -> str:
     if doc.get("near_tie"):
         t = doc["near_tie"]
         lines += [f"**Near tie** in round {t['round']}: `{t['chosen']}` vs `{t['runner_up']}`, scores "
-                  + ", ".join(f"{k} {v:.3f}" for k, v in t["scores"].items()) + ".", ""]
+                  + ", ".join(f"{k} {_fmt(v)}" for k, v in t["scores"].items()) + ".", ""]
     if doc.get("unexplained"):
         lines += ["## Unexplained structure", ""] + [f"- {x}" for x in doc["unexplained"]] + [""]
     lines += ["## Where the base model disagrees (replay residuals)", ""]
@@ -289,7 +289,7 @@ def markdown(d: Discovery, doc: dict) -> str:
         result = {"screened out": "screened out by the coarse scan", "rejected": f"rejected: failed {failed}",
                   "passed, not chosen": "passed every check, not chosen (a better candidate was adopted)",
                   }.get(fate, fate)
-        lines.append(f"| {c['round']} | `{c['name']}` | {c['score']:.3f} | {p} = {_fmt(v)} | "
+        lines.append(f"| {c['round']} | `{c['name']}` | {_fmt(c['score'])} | {p} = {_fmt(v)} | "
                      f"[{_fmt(lo)}, {_fmt(hi)}] | {_fmt(c.get('charge', float('nan')))} | {result} |")
     lines += ["", "Held-out evidence: the negative log-likelihood the candidate removes on cycles it was not fitted "
               "on, in independent samples; an effect is adopted when it exceeds its charge (per parameter), removes "
