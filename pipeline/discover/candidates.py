@@ -213,11 +213,6 @@ class Fit:
         """The whole augmented model: earlier effects (refitted) plus this one."""
         return (*self.base, self.effect)
 
-    @property
-    def excludes_null(self) -> bool:
-        lo, hi = self.interval
-        return not (lo <= _first(self.name).absent <= hi)
-
 
 def value_of(e: Effect) -> float:
     return e.value
@@ -273,19 +268,6 @@ def fit_value(ev: Evaluator, base: tuple[Effect, ...], name: str, bracket: tuple
     scale = max(abs(lo), abs(hi), 1e-12)
     res = minimize_scalar(loss, bounds=(lo, hi), method="bounded", options={"xatol": 5e-4 * scale, "maxiter": 25})
     return float(res.x), float(res.fun)
-
-
-def prune(ev: Evaluator, effects: tuple[Effect, ...]) -> tuple[Effect, ...]:
-    """Backward elimination: an effect whose interval, with all the others refitted, includes
-    its "no effect" value is dropped (an early pick a later one made redundant)."""
-    while len(effects) > 1:
-        spans = effect_intervals(sensitivity(ev, effects), effects)
-        weak = [i for i, (e, (lo, hi)) in enumerate(zip(effects, spans)) if lo <= e.PARAMS[0].absent <= hi]
-        if not weak:
-            break
-        rest = effects[:weak[0]] + effects[weak[0] + 1:]
-        effects = joint_fit(ev, rest)
-    return effects
 
 
 def fit_candidate(ev: Evaluator, base: tuple[Effect, ...], name: str,
