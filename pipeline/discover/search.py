@@ -226,7 +226,6 @@ def excess(ev: Evaluator, effects: tuple[Effect, ...]) -> dict[str, float]:
 class _Run:
     effects: tuple[Effect, ...]
     rounds: list[list[Candidate]]
-    net: float                 # total evidence less charges of the effects adopted
 
 
 def nameable(effect: Effect, policy: DiscoveryPolicy) -> bool:
@@ -269,9 +268,8 @@ def _forward(ev: Evaluator, names: tuple[str, ...], folds, policy: DiscoveryPoli
              start: Candidate | None, first_round: list[Candidate]) -> _Run:
     effects: tuple[Effect, ...] = ()
     rounds: list[list[Candidate]] = []
-    net = 0.0
     if start is not None:
-        effects, net = start.fit.effects, start.evidence - start.charge
+        effects = start.fit.effects
         rounds.append([replace(c, accepted=c is start) if isinstance(c, Candidate) else c for c in first_round])
     while len(effects) < policy.max_effects and ev.work <= policy.work_budget and room(ev, effects) > min(
             charge(n, policy) for n in names):
@@ -284,8 +282,8 @@ def _forward(ev: Evaluator, names: tuple[str, ...], folds, policy: DiscoveryPoli
         if adopt is None:
             break
         adopt.accepted = True
-        effects, net = adopt.fit.effects, net + adopt.evidence - adopt.charge
-    return _Run(effects=effects, rounds=rounds, net=net)
+        effects = adopt.fit.effects
+    return _Run(effects=effects, rounds=rounds)
 
 
 def _prune(ev: Evaluator, effects: tuple[Effect, ...], folds, policy: DiscoveryPolicy,
@@ -339,9 +337,8 @@ def _search(meas: Measurement, names: tuple[str, ...], policy: DiscoveryPolicy, 
             runs.append(_forward(ev, names, folds, policy, c, first))
     # one likelihood for every model compared: the residual correlation the plain run leaves
     taus = residual_taus(ev, plain.effects)
-    null = heldout_nll(ev, (), folds, taus)
-    best = min(runs, key=lambda r: heldout_nll(ev, r.effects, folds, taus) - null
-               + sum(charge(e.name, policy) for e in r.effects))
+    best = plain if len(runs) == 1 else min(runs, key=lambda r: heldout_nll(ev, r.effects, folds, taus)
+                                            + sum(charge(e.name, policy) for e in r.effects))
     adopted = {e.name for r in runs for e in r.effects}
     effects = _prune(ev, best.effects, folds, policy, taus)
     refine_start(ev, effects)
