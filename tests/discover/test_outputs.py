@@ -72,6 +72,14 @@ def test_json_contract(delay_run):
     assert accepted[0]["name"] == "loop_delay" and all(accepted[0]["checks"].values())
 
 
+def test_every_candidate_key_is_documented_in_format_md(delay_run):
+    """docs/FORMAT.md's table of a candidate's keys names every key the command writes."""
+    _, _, doc = delay_run
+    text = (Path(__file__).parents[2] / "docs" / "FORMAT.md").read_text(encoding="utf-8")
+    written = {k for c in doc["candidates"] for k in c} | {k for c in doc["candidates"] for k in c.get("checks", {})}
+    assert {k for k in written if f"`{k}`" not in text} == set()
+
+
 def test_files_written_and_snippet_is_accepted_by_validation(delay_run):
     csv, out, doc = delay_run
     for name in ("discovery.json", "effects.toml", "report.md", "signals.png", "residuals.png",
