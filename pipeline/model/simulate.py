@@ -193,19 +193,41 @@ def simulate(spec: PlantSpec, t: np.ndarray | None = None, *, duration: float = 
     theta crosses the guard instead of at the next sample (for comparison).
     Either way the motor sees a command ``Td`` after it is decided.
     """
-    shift, v_bias = _torque_shift(spec)
-    t, controller = _controller(spec, t, duration, dir0, dir_log, closed_loop, guard, v_bias)
-    x = np.array(x0, dtype=float)
-    x[0] += shift
-    out, dirs = np.empty((3, len(t))), np.empty(len(t), dtype=np.int8)
-    if spec.is_linear and not controller.continuous:
-        run_zoh(*spec.params.state_matrices(), controller, t, x, out, dirs)       # exact ZOH steps
-    else:
-        run_events(*plant_constants(spec), controller, t, x, out, dirs)          # located events
-    current, omega, delta = out[0] - shift, out[1], out[2]
-    # theta = delta / R (eq. 7): the division the kernels decide with, so the same bits
-    return SimResult(t=t, theta=delta / spec.params.R, omega=omega, current=current, current_measured=current + spec.I0,
-                     delta=delta, dir=dirs, u=dirs * float(spec.v_drive))
+    return Prepared.of(spec, t, duration=duration, dir0=dir0, dir_log=dir_log, closed_loop=closed_loop,
+                       guard=guard).run(x0)
+
+
+@dataclass(frozen=True)
+class Prepared:
+    """A simulation with its arguments checked and its controller built, run from any start: a start
+    estimate replays one plant under one command from a dozen starts, and the checks cost as much as a
+    short window's simulation."""
+
+    spec: PlantSpec
+    t: np.ndarray
+    controller: loop.Controller
+    shift: float          # A: the constant torque carried as a current (``_torque_shift``)
+
+    @classmethod
+    def of(cls, spec: PlantSpec, t: np.ndarray | None = None, *, duration: float = 24.95, dir0: int = 1,
+           dir_log: np.ndarray | None = None, closed_loop: bool = True, guard: str = "sampled") -> "Prepared":
+        shift, v_bias = _torque_shift(spec)
+        t, controller = _controller(spec, t, duration, dir0, dir_log, closed_loop, guard, v_bias)
+        return cls(spec, t, controller, shift)
+
+    def run(self, x0: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> SimResult:
+        spec, t, controller = self.spec, self.t, self.controller
+        x = np.array(x0, dtype=float)
+        x[0] += self.shift
+        out, dirs = np.empty((3, len(t))), np.empty(len(t), dtype=np.int8)
+        if spec.is_linear and not controller.continuous:
+            run_zoh(*spec.params.state_matrices(), controller, t, x, out, dirs)       # exact ZOH steps
+        else:
+            run_events(*plant_constants(spec), controller, t, x, out, dirs)          # located events
+        current, omega, delta = out[0] - self.shift, out[1], out[2]
+        # theta = delta / R (eq. 7): the division the kernels decide with, so the same bits
+        return SimResult(t=t.copy(), theta=delta / spec.params.R, omega=omega, current=current,
+                         current_measured=current + spec.I0, delta=delta, dir=dirs, u=dirs * float(spec.v_drive))
 
 
 def _torque_shift(spec: PlantSpec) -> tuple[float, float]:
