@@ -203,6 +203,11 @@ class Measurement:
         for key in [k for k in self.cache.starts if k[0] == plant]:
             del self.cache.starts[key]
 
+    def hold_everywhere(self, offset: float) -> None:
+        """Hold the counter's ``offset`` for every model: each start is estimated again with it."""
+        self.cache.offsets["segment"] = offset
+        self.cache.starts.clear()
+
     def pin_start(self, spec: PlantSpec, dir_log: np.ndarray, start: Start) -> None:
         """Use ``start`` for ``spec`` under ``dir_log`` from now on (a start refined on more than the
         first seconds: ``discover.start_refit``)."""

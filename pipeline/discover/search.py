@@ -314,6 +314,18 @@ def _settled(meas: Measurement, effects: tuple[Effect, ...]) -> Measurement:
     return settle_switches(meas, lambda m: probe.nll(m.replay(spec)))
 
 
+def hold_offset_of(ev: Evaluator, effects: tuple[Effect, ...]) -> None:
+    """After a board reset: the counter's offset (a nuisance held from the base model's fit through the
+    rounds) estimated again under the model the rounds found, and held for every model compared from
+    then on, so the elimination and the verdict judge each model at one offset its best one chose."""
+    meas = ev.meas
+    if meas.angle_reference_known or not effects:
+        return
+    offset = meas.segment_offset(meas.spec(effects), ev.command_for(effects))
+    if offset is not None:
+        meas.hold_everywhere(offset)
+
+
 def _search(meas: Measurement, names: tuple[str, ...], policy: DiscoveryPolicy, spent: int = 0) -> Selection:
     """The rounds, further starts, elimination and verdict on one settling of the switches; ``spent``: the
     work of an earlier search on the recording (the budgets bound them together)."""
@@ -340,6 +352,7 @@ def _search(meas: Measurement, names: tuple[str, ...], policy: DiscoveryPolicy, 
     best = plain if len(runs) == 1 else min(runs, key=lambda r: heldout_nll(ev, r.effects, folds, taus)
                                             + sum(charge(e.name, policy) for e in r.effects))
     adopted = {e.name for r in runs for e in r.effects}
+    hold_offset_of(ev, best.effects)
     effects = _prune(ev, best.effects, folds, policy, taus)
     refine_start(ev, effects)
     ex_after = excess(ev, effects)

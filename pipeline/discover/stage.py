@@ -244,7 +244,7 @@ def segment_to_discover(runs: list[RunPaths], policy: DiscoveryPolicy = DEFAULT_
     counter started where the springs hold the pinion; after a reset it restarts wherever the pinion
     then is, so where the springs rest in its count is a nuisance that a constant load torque only
     moves (such a segment tells Tl - k * offset, not Tl), and every model's start and offset are
-    fitted there (costlier, so discovery searches less widely: ``selection.wide_searches``)."""
+    fitted there (costlier: one search run, no further starts, ``search._search``)."""
     import pyarrow.parquet as pq
 
     def samples(paths: RunPaths) -> int:
