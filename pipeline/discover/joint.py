@@ -10,10 +10,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from pipeline.discover.residuals import residuals
 from pipeline.estimate import autocorrelation_time
+from pipeline.estimate.fit import Steps, fit
+from pipeline.estimate.unknowns import effect_unknowns
 from pipeline.model.effects import Effect, Param
 
 # ------------------------------------------------------------------ the joint parameter vector
@@ -110,37 +111,40 @@ def moved_effects(effects: tuple[Effect, ...], step: np.ndarray, trust: float = 
 
 
 def joint_fit(ev, effects: tuple[Effect, ...], max_nfev: int = 40, held: tuple[Effect, ...] = ()) -> tuple[Effect, ...]:
-    """Every parameter of every effect at once (``scipy.optimize.least_squares``, trust region within the
-    bounds), so the result does not depend on the order the effects were found in.
+    """Every parameter of every effect at once (``estimate.fit``: trust region within the bounds), so the
+    result does not depend on the order the effects were found in.
 
-    Each signal's residual is divided by its RMS at the start (the concentrated
-    likelihood's weights there), each parameter by its own scale (its value, or
-    its typical size near zero); the fit is kept only if the likelihood improves.  ``held``: effects
-    in the model at their given values, not fitted (a profile over one of them).
+    Each signal's residual is divided by its RMS at the start (the concentrated likelihood's weights
+    there), each parameter by its own size (``effect_unknowns(scaled=True)``); the fit is kept only if
+    the likelihood improves.  ``held``: effects in the model at their given values, not fitted (a
+    profile over one of them).
     """
     if not effects:
         return effects
-    coords = coordinates(effects)
-    scale = np.array([max(abs(v), abs(p.typical - p.absent), 1e-12) for (_, p), v in zip(coords, values_of(effects))])
-    lo = np.array([p.bounds[0] for _, p in coords]) / scale
-    hi = np.array([p.bounds[1] for _, p in coords]) / scale
-    margin = 1e-9 * (hi - lo)
-    z0 = np.clip(values_of(effects) / scale, lo + margin, hi - margin)
+    unknowns = [u for e in effects for u in effect_unknowns(e, scaled=True)]
     start = residuals(ev.meas, ev.sim((*effects, *held)))
     weight = {s: 1.0 / np.sqrt(float(np.mean(r * r)) + 1e-3 * ev.floor[s]) for s, r in start.items()}
     size = sum(len(r) for r in start.values())
 
-    def weighted(z: np.ndarray) -> np.ndarray:
-        res = residuals(ev.meas, ev.sim((*with_values(effects, z * scale), *held)))
+    def at(x: np.ndarray) -> tuple[Effect, ...]:
+        return with_values(effects, np.array([u.to_value(z) for u, z in zip(unknowns, x)]))
+
+    def weighted(x: np.ndarray) -> np.ndarray:
+        res = residuals(ev.meas, ev.sim((*at(x), *held)))
         out = np.concatenate([weight[s] * r for s, r in res.items()])
         return out if out.shape == (size,) and np.all(np.isfinite(out)) else np.full(size, 1e6)
 
     try:
-        sol = least_squares(weighted, z0, bounds=(lo, hi), diff_step=1e-4, max_nfev=max_nfev)
+        result = fit(weighted, unknowns, max_nfev=max_nfev, factors=np.zeros(0), steps=JOINT_STEPS)
     except ValueError:
         return effects
-    trial = with_values(effects, sol.x * scale)
+    trial = at(result.x)
     return trial if ev.nll(ev.sim((*trial, *held))) < ev.nll(ev.sim((*effects, *held))) else effects
+
+
+# relative finite-difference steps of 1e-4 of each parameter's size (an event-driven plant's likelihood is only
+# piecewise smooth: smaller steps read its kinks), every coordinate of unit typical step
+JOINT_STEPS = Steps(diff_step=1e-4, x_scale=1.0)
 
 
 def intervals(sens: Sensitivity, values: list[float]) -> list[tuple[float, float]]:

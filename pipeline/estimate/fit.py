@@ -95,7 +95,7 @@ class FitResult:
         out = {}
         for i, u in enumerate(self.unknowns):
             sd = float(np.sqrt(max(self.cov_internal[i, i], 0.0)))
-            out[u.name] = sd * u.to_value(self.x[i]) if u.log else sd
+            out[u.name] = sd * u.to_value(self.x[i]) if u.log else sd * u.scale
         return out
 
     def wald_interval(self, name: str, level: float = 0.95) -> tuple[float, float]:
@@ -183,17 +183,26 @@ def _weighted(residual: Residual, segments: Sequence[slice], factors: np.ndarray
     return f
 
 
-def _solve(residual: Residual, unknowns: list[Unknown], x0: np.ndarray, bounds, max_nfev: int):
+@dataclass(frozen=True)
+class Steps:
+    """How the optimizer steps: ``diff_step`` relative for its finite differences, ``x_scale`` each internal
+    coordinate's typical step (None: the priors' widths, else the values' sizes)."""
+
+    diff_step: float = 1e-6
+    x_scale: float | None = None
+
+
+def _solve(residual: Residual, unknowns: list[Unknown], x0: np.ndarray, bounds, max_nfev: int, steps: Steps):
     stacked = _stacked(residual, unknowns)
     if not unknowns:
         return x0, np.zeros((len(stacked(x0)), 0)), True, 1
-    sol = least_squares(stacked, x0, bounds=bounds, x_scale=_scales(unknowns, x0), diff_step=1e-6,
-                        max_nfev=max_nfev, method="trf")
+    sol = least_squares(stacked, x0, bounds=bounds, diff_step=steps.diff_step, max_nfev=max_nfev, method="trf",
+                        x_scale=_scales(unknowns, x0) if steps.x_scale is None else steps.x_scale)
     return sol.x, sol.jac, bool(sol.success), int(sol.nfev)
 
 
 def fit(residual: Residual, unknowns: Sequence[Unknown], *, max_nfev: int = 200,
-        segments: Sequence[slice] = (), factors: np.ndarray | None = None) -> FitResult:
+        segments: Sequence[slice] = (), factors: np.ndarray | None = None, steps: Steps = Steps()) -> FitResult:
     """Minimise data chi-square plus priors over ``unknowns``; ``residual`` maps their internal
     coordinates to the whitened data residuals, ``segments`` its rows per recording and signal.
 
@@ -205,10 +214,10 @@ def fit(residual: Residual, unknowns: Sequence[Unknown], *, max_nfev: int = 200,
     hi = np.array([u.internal_bounds[1] for u in unknowns])
     x, nfev = _start(unknowns, (lo, hi)), 0
     if factors is None:
-        x, _, _, nfev = _solve(residual, unknowns, x, (lo, hi), max_nfev)
+        x, _, _, nfev = _solve(residual, unknowns, x, (lo, hi), max_nfev, steps)
         factors = inflation(residual(x), segments)
     weighted = _weighted(residual, segments, factors)
-    x, jac, ok, more = _solve(weighted, unknowns, x, (lo, hi), max_nfev)
+    x, jac, ok, more = _solve(weighted, unknowns, x, (lo, hi), max_nfev, steps)
     nfev += more
     r = weighted(x)
     p = _prior_rows(unknowns, x)

@@ -35,19 +35,20 @@ class Unknown:
     unit: str = ""
     prior: Prior | None = None
     log: bool = False            # fitted as log(value) (a positive scale)
+    scale: float = 1.0           # otherwise fitted as value / scale (a parameter that may be 0, in its own size)
 
     def to_internal(self, value: float) -> float:
-        return float(np.log(value)) if self.log else float(value)
+        return float(np.log(value)) if self.log else float(value / self.scale)
 
     def to_value(self, z: float) -> float:
-        return float(np.exp(z)) if self.log else float(z)
+        return float(np.exp(z)) if self.log else float(z * self.scale)
 
     @property
     def internal_bounds(self) -> tuple[float, float]:
         lo, hi = self.bounds
         if self.log:
             return float(np.log(max(lo, 1e-300))), float(np.log(hi)) if np.isfinite(hi) else np.inf
-        return float(lo), float(hi)
+        return float(lo / self.scale), float(hi / self.scale)
 
     def prior_row(self, z: float) -> float | None:
         """The prior's residual row, in the fitted coordinate (None: no prior)."""
@@ -89,7 +90,9 @@ class Model:
         return Model(base=self.base, effects=(*self.effects, effect))
 
 
-def effect_unknowns(effect: Effect) -> list[Unknown]:
-    """Every parameter of an effect (all of them, not the first), within its physical bounds, no prior."""
-    return [Unknown(name=f"{effect.name}.{p.name}", start=effect.parameters[p.name], bounds=p.bounds, unit=p.unit)
+def effect_unknowns(effect: Effect, scaled: bool = False) -> list[Unknown]:
+    """Every parameter of an effect (all of them, not the first), within its physical bounds, no prior;
+    ``scaled``: each in units of its own size (its value, or its typical size near absent)."""
+    return [Unknown(name=f"{effect.name}.{p.name}", start=effect.parameters[p.name], bounds=p.bounds, unit=p.unit,
+                    scale=max(abs(effect.parameters[p.name]), abs(p.typical - p.absent), 1e-12) if scaled else 1.0)
             for p in CATALOGUE[effect.name].PARAMS]

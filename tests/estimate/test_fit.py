@@ -80,3 +80,18 @@ def test_a_model_the_simulator_refuses_is_stepped_back_from():
         return (2.0 * X - z[0] * X) / 0.1
     res = fit(residual, [Unknown("a", 2.9, (0, 10))], segments=[slice(0, len(X))])
     assert res.values["a"] == pytest.approx(2.0, abs=1e-6)
+
+
+def test_a_parameter_fitted_in_its_own_size_has_the_same_answer_and_standard_error():
+    """A coefficient of 1e-4 fitted as value / 1e-4 (``Unknown.scale``, as discovery fits an effect's
+    parameters): the values, standard errors and intervals are reported in the parameter's own units."""
+    rng = np.random.default_rng(3)
+    y = 3e-4 * X + 0.2 + rng.normal(0.0, 0.01, X.size)
+    residual = lambda z: (y - z[0] * X - z[1]) / 0.01           # noqa: E731 (the values, not the internal x)
+    plain = fit(residual, [Unknown("a", 1e-4, (-1.0, 1.0)), Unknown("b", 0.0, (-10, 10))], segments=[slice(0, 200)])
+    scaled_unknowns = [Unknown("a", 1e-4, (-1.0, 1.0), scale=1e-4), Unknown("b", 0.0, (-10, 10))]
+    scaled = fit(lambda z: residual([z[0] * 1e-4, z[1]]), scaled_unknowns, segments=[slice(0, 200)])
+    assert scaled.values["a"] == pytest.approx(plain.values["a"], rel=1e-6)
+    assert scaled.stderr["a"] == pytest.approx(plain.stderr["a"], rel=1e-3)
+    assert scaled_unknowns[0].internal_bounds == (-1e4, 1e4)
+    assert scaled.wald_interval("a")[0] < 3e-4 < scaled.wald_interval("a")[1]
