@@ -4,12 +4,12 @@ The fit is on *replay* (the logged command drives the model), which is smooth
 in the parameters; the closed-loop free run is only used to confirm.  The
 objective is the Gaussian likelihood with an unknown variance per signal,
 concentrated: nll = sum_s n_s/2 * log(mean(r_s^2)).  It needs no weights
-between rad and A, and it is what BIC charges parameters against.
+between rad and A, and the search's held-out evidence is counted in it.
 
 A candidate is scanned and fitted on its first parameter (``Param.scan``, the
 effect's own coarse grid over its physical range), then Brent's method between
 the best scan point's neighbours; every parameter of every effect found so far
-is refitted jointly (``joint_fit``: ``scipy.optimize.least_squares``).  Effects
+is refitted jointly (``joint_fit``: the estimation core's ``estimate.fit``).  Effects
 found in earlier rounds are not frozen: the scan predicts how they would move
 (one Gauss-Newton step), and the candidate is refitted together with them.
 """
