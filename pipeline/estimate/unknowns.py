@@ -86,9 +86,6 @@ class Model:
         effects = tuple(type(e)(**{**e.parameters, **effect_changes.get(e.name, {})}) for e in self.effects)
         return Model(base=replace(self.base, **base_changes), effects=effects)
 
-    def with_effect(self, effect: Effect) -> "Model":
-        return Model(base=self.base, effects=(*self.effects, effect))
-
 
 def effect_unknowns(effect: Effect, scaled: bool = False) -> list[Unknown]:
     """Every parameter of an effect (all of them, not the first), within its physical bounds, no prior;
