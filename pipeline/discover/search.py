@@ -43,7 +43,7 @@ from pipeline.discover.joint import effect_intervals, joint_fit, sensitivity
 from pipeline.discover.measurement import Measurement, ambiguous_switches, settle_switches
 from pipeline.discover.policy import DEFAULT_POLICY, DiscoveryPolicy
 from pipeline.discover.residuals import noise_floor, residuals
-from pipeline.discover.start_refit import held_start_sensitivity, refine_start
+from pipeline.discover.start_refit import held_start_sensitivity, hold_offset_of, refine_start
 from pipeline.estimate.fit import autocorrelation_time
 from pipeline.model.effects import CATALOGUE, Effect
 
@@ -312,18 +312,6 @@ def _settled(meas: Measurement, effects: tuple[Effect, ...]) -> Measurement:
     spec = meas.spec(effects)
     probe = Evaluator(meas, noise_floor(meas))
     return settle_switches(meas, lambda m: probe.nll(m.replay(spec)))
-
-
-def hold_offset_of(ev: Evaluator, effects: tuple[Effect, ...]) -> None:
-    """After a board reset: the counter's offset (a nuisance held from the base model's fit through the
-    rounds) estimated again under the model the rounds found, and held for every model compared from
-    then on, so the elimination and the verdict judge each model at one offset its best one chose."""
-    meas = ev.meas
-    if meas.angle_reference_known or not effects:
-        return
-    offset = meas.segment_offset(meas.spec(effects), ev.command_for(effects))
-    if offset is not None:
-        meas.hold_everywhere(offset)
 
 
 def _search(meas: Measurement, names: tuple[str, ...], policy: DiscoveryPolicy, spent: int = 0) -> Selection:

@@ -1,4 +1,5 @@
-"""The final model's start, refined on the whole recording.
+"""The final model's start, refined on the whole recording (and, after a board reset, the counter's offset
+under the model the rounds found: ``hold_offset_of``).
 
 The start is estimated from the first seconds (``estimate.initial_state``): enough to rank
 candidates, but a slow mode (the armature's La/Ra of seconds, a backlash or a stick near the
@@ -160,3 +161,15 @@ def held_start_sensitivity(ev: Evaluator, effects: tuple[Effect, ...]) -> Sensit
         r1 = replayed(effects, z0 + h * np.eye(3)[i])
         sens.jac.append({s: (r1[s] - sens.r0[s]) / h for s in sens.r0})
     return sens
+
+
+def hold_offset_of(ev: Evaluator, effects: tuple[Effect, ...]) -> None:
+    """After a board reset: the counter's offset (a nuisance held from the base model's fit through the
+    rounds) estimated again under the model the rounds found, and held for every model compared from
+    then on, so the elimination and the verdict judge each model at one offset its best one chose."""
+    meas = ev.meas
+    if meas.angle_reference_known or not effects:
+        return
+    offset = meas.segment_offset(meas.spec(effects), ev.command_for(effects))
+    if offset is not None:
+        meas.hold_everywhere(offset)
