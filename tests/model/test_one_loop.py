@@ -85,3 +85,21 @@ def test_filled_gaps_are_remembered_read_only_and_keyed_by_every_input():
     other_guard = with_lost_samples(*args[:3], 0.5 * spec.guard_rad)
     assert other_guard[1] is not first[1]
     assert with_lost_samples(*args[:2])[1] is not first[1]        # no angle: undecided reversals, another entry
+
+
+@pytest.mark.parametrize("case", list(EFFECTS))
+def test_a_prepared_replay_run_from_several_starts_is_each_start_simulated_alone(case):
+    """``Prepared`` checks the arguments and builds the controller once (a start estimate tries a dozen
+    starts under one command): each run is the same computation as ``simulate`` from that start, and a run
+    leaves nothing behind for the next."""
+    from pipeline.model.simulate import Prepared
+
+    spec = default_config().plant_spec(EFFECTS[case])
+    t = np.cumsum(np.where(np.arange(200) % 3 == 0, 0.051, 0.050))
+    log = simulate(spec, t).dir
+    prepared = Prepared.of(spec, t, dir_log=log, closed_loop=False)
+    for x0 in ((0.0, 0.0, 0.0), (0.02, -0.3, 0.01), (0.0, 0.0, 0.0)):
+        alone = simulate(spec, t, x0=x0, dir_log=log, closed_loop=False)
+        run = prepared.run(x0)
+        for f in ("t", "theta", "omega", "current", "current_measured", "dir"):
+            assert np.array_equal(getattr(run, f), getattr(alone, f)), f
