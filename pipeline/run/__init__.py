@@ -40,15 +40,16 @@ def run_command(
 
     Example: pdr run --raw raw --processed processed -j 2   (or --cluster tcp://HOST:8786)
     """
-    from pipeline.run.stop import Stopped, stop_signals
+    from pipeline.run.stop import stop_signals, stopped_by
 
     with stop_signals():
         try:
             report = run_pipeline(raw, processed, jobs=jobs, force=force, show_progress=sys.stderr.isatty(),
                                   cluster=cluster or None)
             print_report(report, processed)
-        except KeyboardInterrupt as err:        # said here: typer turns it into a silent exit 130
-            stop = err if isinstance(err, Stopped) else Stopped()
+        except BaseException as err:            # a stop is said here: typer turns it into a silent exit 130
+            if (stop := stopped_by(err)) is None:
+                raise
             typer.echo(f"pdr: {stop}", err=True)
             raise typer.Exit(stop.exit_status) from None
     if report.failed:

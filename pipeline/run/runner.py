@@ -37,6 +37,7 @@ from pipeline.run.report import RunReport
 from pipeline.run.pool import chunks, make_pool
 from pipeline.run.stages import derive_ahead, failed_ahead, ingest_ahead, process_chunk
 from pipeline.run.stamp import Stamp, code_version, previous_runs, prune_orphans, stamp_for, up_to_date, withdraw
+from pipeline.run.stop import stopped_by
 from pipeline.runs import SUMMARY_CSV
 
 
@@ -171,9 +172,11 @@ def _execute(todo: list[tuple[Path, Stamp]], processed: Path, jobs: int, show_pr
                         continue
                     bar.update(task, description=chunk[-1][0].name)
                     bar.advance(task, len(chunk))
-            except KeyboardInterrupt:           # Ctrl-C or SIGTERM (pipeline.run.stop)
+            except BaseException as err:        # Ctrl-C or SIGTERM (pipeline.run.stop), whatever it surfaced as
+                if (stop := stopped_by(err)) is None:
+                    raise
                 _stop_workers(pool, processed)
-                raise
+                raise stop from None
             pool.shutdown()
             # A worker that dies (e.g. a crash in a native library) takes every pending recording
             # with it: retry those one by one, each in a fresh worker, so only the culprit fails.

@@ -48,25 +48,46 @@ def children_ignore_sigint() -> Iterator[None]:
         signal.signal(signal.SIGINT, previous)
 
 
+_received: list[Stopped] = []       # the stops signals raised during ``stop_signals``
+
+
 def _raise_terminated(signum: int, frame: object) -> None:
-    raise Stopped(TERMINATED, 128 + signum)
+    _received.append(Stopped(TERMINATED, 128 + signum))
+    raise _received[-1]
+
+
+def _raise_interrupted(signum: int, frame: object) -> None:
+    _received.append(Stopped())
+    raise _received[-1]
+
+
+def stopped_by(err: BaseException) -> Stopped | None:
+    """The stop behind ``err``: itself (Ctrl-C or SIGTERM), or one a signal raised during ``stop_signals``
+    that surfaced as another exception (raised while a C extension initialises, it arrives as
+    ``ImportError: initialization failed``); None for a failure of its own."""
+    if isinstance(err, Stopped):
+        return err
+    if isinstance(err, KeyboardInterrupt):
+        return Stopped()
+    return _received[-1] if _received else None
 
 
 @contextmanager
 def stop_signals() -> Iterator[None]:
     """For the duration: SIGTERM raises ``Stopped`` in the main thread (the cleanup of Ctrl-C then runs),
-    and SIGINT raises ``KeyboardInterrupt`` even when it was ignored from the start.  A shell without job
+    and SIGINT raises ``Stopped`` too (a ``KeyboardInterrupt``) even when it was ignored from the start; each
+    is remembered (``stopped_by``).  A shell without job
     control starts ``pdr run &`` with SIGINT ignored, which Python keeps: a script's ``kill -INT`` (or a
     Ctrl-C to its whole group) then went unheard and the run carried on to the end."""
     if not _in_main_thread():
         yield
         return
+    _received.clear()
     previous_term = signal.signal(signal.SIGTERM, _raise_terminated)
-    previous_int = signal.getsignal(signal.SIGINT)
-    if previous_int == signal.SIG_IGN:
-        signal.signal(signal.SIGINT, signal.default_int_handler)
+    previous_int = signal.signal(signal.SIGINT, _raise_interrupted)
     try:
         yield
     finally:
         signal.signal(signal.SIGTERM, previous_term)
         signal.signal(signal.SIGINT, previous_int)
+        _received.clear()
