@@ -196,17 +196,13 @@ class Measurement:
         self.x0(spec, dir_log)
         return self.cache.estimators[without_offset(spec)].start(dir_log, spec.I0, offset=offset)
 
-    def hold_offset(self, spec: PlantSpec, offset: float) -> None:
-        """Hold the counter's ``offset``; the starts under ``spec``'s plant are estimated again with it."""
+    def hold_offset(self, spec: PlantSpec | None, offset: float) -> None:
+        """Hold the counter's ``offset``; the starts under ``spec``'s plant (None: every plant's) are
+        estimated again with it."""
         self.cache.offsets["segment"] = offset
-        plant = without_offset(spec)
-        for key in [k for k in self.cache.starts if k[0] == plant]:
+        plant = None if spec is None else without_offset(spec)
+        for key in [k for k in self.cache.starts if plant is None or k[0] == plant]:
             del self.cache.starts[key]
-
-    def hold_everywhere(self, offset: float) -> None:
-        """Hold the counter's ``offset`` for every model: each start is estimated again with it."""
-        self.cache.offsets["segment"] = offset
-        self.cache.starts.clear()
 
     def pin_start(self, spec: PlantSpec, dir_log: np.ndarray, start: Start) -> None:
         """Use ``start`` for ``spec`` under ``dir_log`` from now on (a start refined on more than the

@@ -24,7 +24,9 @@ candidates are further starts: the rounds run from each, and the model with the 
 (held-out likelihood less charges, one set of autocorrelation times for all) is kept, because the
 first pick among near-twins (a softer spring and a heavier rack both slow the oscillation) is made
 before the partners are known.  Then each effect the others made redundant (its gain, with them
-refitted, no longer clears its charge) is dropped.
+refitted, no longer clears its charge) is dropped; after a board reset the counter's zero, a nuisance held
+from the base model's fit through the rounds, is first estimated again under the model found
+(``start_refit.hold_offset_of``), so the elimination and the verdict judge every model at one offset.
 
 The verdict.  ``none`` when nothing is adopted and the recording is at its noise floor;
 ``explained`` when effects are adopted and what is left is within ``policy.structure_floors``

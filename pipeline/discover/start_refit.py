@@ -172,4 +172,4 @@ def hold_offset_of(ev: Evaluator, effects: tuple[Effect, ...]) -> None:
         return
     offset = meas.segment_offset(meas.spec(effects), ev.command_for(effects))
     if offset is not None:
-        meas.hold_everywhere(offset)
+        meas.hold_offset(None, offset)
