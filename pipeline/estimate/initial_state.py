@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from functools import lru_cache
 from dataclasses import replace
 
 import numpy as np
@@ -69,13 +70,14 @@ def lead_offsets(delay_s: float, period_s: float) -> np.ndarray:
     return np.array([-delay_s] + [-j * period_s for j in sorted(js, reverse=True)])
 
 
-def command_sequences(m: int) -> list[tuple[int, ...]]:
+@lru_cache(maxsize=None)
+def command_sequences(m: int) -> tuple[tuple[int, ...], ...]:
     """Pre-log command sequences worth trying: one value, then perhaps another (at most one
     change of command within a loop delay: the rig reverses every ~1.7 s)."""
     if m == 0:
-        return [()]
+        return ((),)
     out = {(a,) * k + (b,) * (m - k) for a, b in itertools.product((-1, 0, 1), repeat=2) for k in range(m + 1)}
-    return sorted(out)
+    return tuple(sorted(out))
 
 
 def _window(t: np.ndarray) -> int:
@@ -115,6 +117,9 @@ class _Problem:
         self.y = np.concatenate(ys)
         self.ok = np.concatenate(ok)
         self.which = np.concatenate(which)
+        # each signal's observed rows (the variances and the score ask after every reweighting)
+        self._rows = [np.flatnonzero(self.ok & (self.which == i)) for i in range(len(self.names))]
+        self._counts = np.array([len(rows) for rows in self._rows])
         self.noise = np.array([max(float(observed[s][1]), 1e-30) for s in self.names])
         self.current_rows = (np.array(self.names) == "current")[self.which].astype(float)
         self._runs: dict[bytes, SimResult] = {}
@@ -171,16 +176,15 @@ class _Problem:
         """Per signal: its noise, or its mean-square misfit when the model misses by more (a
         model error in the angle then does not buy a wrong current)."""
         out = self.noise.copy()
-        for i in range(len(self.names)):
-            sel = self.ok & (self.which == i)
-            if sel.any():
-                out[i] = max(out[i], float(np.mean(r[sel] ** 2)))
+        for i, rows in enumerate(self._rows):
+            if len(rows):
+                x = r[rows]
+                out[i] = max(out[i], float(np.add.reduce(x * x)) / len(rows))     # np.mean's sum, without its checks
         return out
 
     def score(self, variances: np.ndarray) -> float:
         """The concentrated negative log-likelihood, sum over signals of n_s log(variance_s)."""
-        counts = np.array([np.count_nonzero(self.ok & (self.which == i)) for i in range(len(self.names))])
-        return float(np.sum(counts * np.log(variances)))
+        return float(np.sum(self._counts * np.log(variances)))
 
     @property
     def dof(self) -> int:
@@ -218,15 +222,30 @@ def _fit_commands(r0: np.ndarray, F: np.ndarray, P: np.ndarray, w: np.ndarray, m
     first; the cost is the weighted squared residual plus the prior's ``SWITCH_PENALTY`` per change."""
     Fw = F * w[:, None]
     normal = Fw.T @ Fw
-    inverse = np.linalg.pinv(normal)
+    inverse = _pinv(normal)
     out = []
-    for c in command_sequences(m):
-        target = (r0 - P @ np.asarray(c, dtype=float)) * w if m else r0 * w
+    for c, cf in zip(command_sequences(m), _sequence_arrays(m)):
+        target = (r0 - P @ cf) * w if m else r0 * w
         rhs = Fw.T @ target
         a = inverse @ rhs
         cost = float(target @ target - rhs @ a) + SWITCH_PENALTY * changes(c, first)
         out.append((cost, c, a))
     return sorted(out, key=lambda item: item[0]) if m else out
+
+
+@lru_cache(maxsize=None)
+def _sequence_arrays(m: int) -> tuple[np.ndarray, ...]:
+    return tuple(np.asarray(c, dtype=float) for c in command_sequences(m))
+
+
+def _pinv(a: np.ndarray) -> np.ndarray:
+    """``np.linalg.pinv(a)`` of a real matrix, to the bit (its own steps at its default rcond), without
+    its ~30 us of argument handling: a start estimate takes one per reweighting of a 3x3 normal matrix."""
+    u, s, vt = np.linalg.svd(a, full_matrices=False)
+    large = s > 1e-15 * np.max(s)
+    s = np.divide(1.0, s, where=large, out=s)
+    s[~large] = 0.0
+    return np.matmul(vt.T, np.multiply(s[:, np.newaxis], u.T))
 
 
 def _spread(fits: list, Phi: np.ndarray, scale: float) -> np.ndarray:
@@ -415,7 +434,7 @@ class StartEstimator:
         p.forget_runs()
         Jw = J * w[:, None]
         scale = _residual_scale(residual * w, p.dof)
-        cov_x = Phi @ (scale * np.linalg.pinv(Jw.T @ Jw)) @ Phi.T + _spread(fits, fit_phi, scale)
+        cov_x = Phi @ (scale * _pinv(Jw.T @ Jw)) @ Phi.T + _spread(fits, fit_phi, scale)
         sigma = np.sqrt(np.clip(np.diag(cov_x), 0.0, None))
         return Start(x0=tuple(float(v) for v in x0), sigma=tuple(float(v) for v in sigma),
                      lead_s=tuple(float(v) for v in p.lead), commands=tuple(int(c) for c in commands),

@@ -207,23 +207,26 @@ class Prepared:
     t: np.ndarray
     controller: loop.Controller
     shift: float          # A: the constant torque carried as a current (``_torque_shift``)
+    stepper: tuple        # the kernel and the plant's arguments it runs on (A, B or ``plant_constants``)
 
     @classmethod
     def of(cls, spec: PlantSpec, t: np.ndarray | None = None, *, duration: float = 24.95, dir0: int = 1,
            dir_log: np.ndarray | None = None, closed_loop: bool = True, guard: str = "sampled") -> "Prepared":
         shift, v_bias = _torque_shift(spec)
         t, controller = _controller(spec, t, duration, dir0, dir_log, closed_loop, guard, v_bias)
-        return cls(spec, t, controller, shift)
+        if spec.is_linear and not controller.continuous:
+            stepper = (run_zoh, *spec.params.state_matrices())         # exact ZOH steps
+        else:
+            stepper = (run_events, *plant_constants(spec))             # located events
+        return cls(spec, t, controller, shift, stepper)
 
     def run(self, x0: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> SimResult:
         spec, t, controller = self.spec, self.t, self.controller
         x = np.array(x0, dtype=float)
         x[0] += self.shift
         out, dirs = np.empty((3, len(t))), np.empty(len(t), dtype=np.int8)
-        if spec.is_linear and not controller.continuous:
-            run_zoh(*spec.params.state_matrices(), controller, t, x, out, dirs)       # exact ZOH steps
-        else:
-            run_events(*plant_constants(spec), controller, t, x, out, dirs)          # located events
+        kernel, *plant = self.stepper
+        kernel(*plant, controller, t, x, out, dirs)
         current, omega, delta = out[0] - self.shift, out[1], out[2]
         # theta = delta / R (eq. 7): the division the kernels decide with, so the same bits
         return SimResult(t=t.copy(), theta=delta / spec.params.R, omega=omega, current=current,
