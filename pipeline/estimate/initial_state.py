@@ -124,6 +124,7 @@ class _Problem:
         self.current_rows = (np.array(self.names) == "current")[self.which].astype(float)
         self._runs: dict[bytes, SimResult] = {}
         self._prepared: dict[bytes, Prepared] = {}
+        self._template: Prepared | None = None          # the plant and instants, checked once
         self.theta_rows = (np.array(self.names) == "theta")[self.which].astype(float)
         self.theta_measured = np.asarray(observed["theta"][0][:n], dtype=float) if "theta" in observed else None
         self.set_log(np.zeros(n, dtype=np.int8))       # the logged command, set per estimate
@@ -147,8 +148,9 @@ class _Problem:
         if key not in self._prepared:
             if len(self._prepared) >= 64:
                 self._prepared.clear()
-            self._prepared[key] = Prepared.of(self.spec, self.t, dir0=first_dir(log), dir_log=log,
-                                              closed_loop=False)
+            if self._template is None:
+                self._template = Prepared.of(self.spec, self.t, dir0=first_dir(log), dir_log=log, closed_loop=False)
+            self._prepared[key] = self._template.under(log, dir0=first_dir(log))
         return self._prepared[key]
 
     def forget_runs(self) -> None:

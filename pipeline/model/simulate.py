@@ -25,7 +25,7 @@ Ra tau/Kt (``_torque_shift``), so both steppers run the base plant unchanged.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 
 import numpy as np
@@ -74,19 +74,23 @@ def sample_times(duration: float, period: float) -> np.ndarray:
     return np.arange(n) * period
 
 
-def _controller(spec: PlantSpec, t, duration: float, dir0: int, dir_log, closed_loop: bool, guard: str,
-                v_bias: float) -> tuple[np.ndarray, loop.Controller]:
-    """The sample instants and the controller the kernels run, from ``simulate``'s checked arguments."""
-    if guard not in GUARDS:
-        raise PdrError(f"unknown guard '{guard}', expected one of {', '.join(GUARDS)}", key="guard")
+def _times(spec: PlantSpec, t, duration: float) -> np.ndarray:
+    """The sample instants the kernels run on, checked: the default grid, or ``t`` as the kernels' own copy."""
     t = sample_times(duration, spec.period_s) if t is None else np.asarray(t, dtype=float)
     if t.ndim != 1 or len(t) == 0 or not np.all(np.isfinite(t)) or np.any(np.diff(t) < 0.0):
         raise PdrError("expected a non-empty, finite, non-decreasing array of sample instants", key="t")
-    if dir0 not in (-1, 1):
-        raise PdrError(f"expected dir0 = 1 or -1, got {dir0!r}", key="dir0")
     # The kernels' own copy, contiguous and writable: numba compiles a separate version per array layout
     # and per read-only flag (pandas 3 hands out read-only arrays), each ~10 s and a cache entry.
-    t = np.array(t, dtype=float, order="C")
+    return np.array(t, dtype=float, order="C")
+
+
+def _controller(spec: PlantSpec, t: np.ndarray, dir0: int, dir_log, closed_loop: bool, guard: str,
+                v_bias: float) -> loop.Controller:
+    """The controller the kernels run at the checked instants ``t``, from ``simulate``'s arguments."""
+    if guard not in GUARDS:
+        raise PdrError(f"unknown guard '{guard}', expected one of {', '.join(GUARDS)}", key="guard")
+    if dir0 not in (-1, 1):
+        raise PdrError(f"expected dir0 = 1 or -1, got {dir0!r}", key="dir0")
     if dir_log is None:
         if not closed_loop:
             raise PdrError("replay (closed_loop=False) needs the logged command", key="dir_log")
@@ -101,9 +105,9 @@ def _controller(spec: PlantSpec, t, duration: float, dir0: int, dir_log, closed_
         start = int(nz[0]) if len(nz) else len(t)
         first = int(log[start]) if len(nz) else 0
         log = log.astype(np.int8)
-    return t, loop.Controller(float(spec.params.R), float(spec.guard_rad), float(spec.v_drive), v_bias,
-                              float(spec.Td), log, bool(closed_loop), start, first, int(dir0),
-                              guard == "continuous" and bool(closed_loop))
+    return loop.Controller(float(spec.params.R), float(spec.guard_rad), float(spec.v_drive), v_bias,
+                           float(spec.Td), log, bool(closed_loop), start, first, int(dir0),
+                           guard == "continuous" and bool(closed_loop))
 
 
 def with_lost_samples(t: np.ndarray, dir_log: np.ndarray, angle: np.ndarray | None = None,
@@ -213,12 +217,21 @@ class Prepared:
     def of(cls, spec: PlantSpec, t: np.ndarray | None = None, *, duration: float = 24.95, dir0: int = 1,
            dir_log: np.ndarray | None = None, closed_loop: bool = True, guard: str = "sampled") -> "Prepared":
         shift, v_bias = _torque_shift(spec)
-        t, controller = _controller(spec, t, duration, dir0, dir_log, closed_loop, guard, v_bias)
+        t = _times(spec, t, duration)
+        controller = _controller(spec, t, dir0, dir_log, closed_loop, guard, v_bias)
         if spec.is_linear and not controller.continuous:
             stepper = (run_zoh, *spec.params.state_matrices())         # exact ZOH steps
         else:
             stepper = (run_events, *plant_constants(spec))             # located events
         return cls(spec, t, controller, shift, stepper)
+
+    def under(self, dir_log: np.ndarray, dir0: int = 1) -> "Prepared":
+        """The same plant at the same instants replaying ``dir_log`` (a start estimate tries a dozen
+        pre-log command sequences on one window; the instants and the plant are checked once)."""
+        if self.controller.closed_loop:
+            raise ValueError("Prepared.under replays a prepared replay under another command")
+        return replace(self, controller=_controller(self.spec, self.t, dir0, dir_log, False, "sampled",
+                                                    self.controller.v_bias))
 
     def run(self, x0: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> SimResult:
         spec, t, controller = self.spec, self.t, self.controller
