@@ -1,18 +1,17 @@
 """Effects that hold once the base model may move: discovery on a rig whose ``[model]`` is not declared.
 
 A rig that is not the paper's has its own motor, gearbox, springs and friction.  Fitted against
-Table I, its recording shows structure that catalogued effects can partly absorb -- softer springs,
-a backlash, a delay -- although the rig has none of them: they stand in for the base model's error.
-So where the rig's TOML declares no ``[model]`` and the search leaves structure that no catalogued
-effect removes (verdict ``unexplained``), every effect it found is tested again with the base
+Table I, its recording shows structure that catalogued effects can absorb -- softer springs, more
+viscous friction, a backlash, a delay -- although the rig has none of them: they stand in for the
+base model's error, and the search may even call the recording explained by them.  So where the
+rig's TOML declares no ``[model]``, every effect the search found is tested again with the base
 parameters free within their prior (Table I with ``TABLE_I_TOLERANCE``, under calibration's
 convention), by the estimation core: one likelihood, each effect charged for all its parameters
 (BIC), each dropped whose removal costs less than its charge.  Effects that are base parameters
-under another name (viscous friction, spring stiffness, rack inertia) never survive this: without a
-calibration they cannot be told from the rig's own values.  Where the base model itself is off
+under another name (viscous friction, spring stiffness, rack inertia) rarely survive this: without a
+calibration they cannot be told from the rig's own values.  Where the check drops an effect, the
+verdict is ``unexplained`` (``stage.Discovery.verdict``); where the base model itself is off
 (freeing it gains more than its parameters' charge), the answer says so and asks for a calibration.
-Where effects do explain the recording (``explained``) the answer stands: a Table I rig with more
-friction is named as such.
 """
 
 from __future__ import annotations

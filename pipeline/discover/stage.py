@@ -56,7 +56,11 @@ class Discovery:
 
     @property
     def verdict(self) -> str:
-        return self.selection.verdict       # the base-free check runs on an unexplained verdict and keeps it
+        """The search's verdict, or ``unexplained`` where the base-free check dropped what the search
+        found: the structure is there, and only the rig's own base parameters can say what it is."""
+        if self.base_check is not None and self.base_check.dropped:
+            return "unexplained"
+        return self.selection.verdict
 
     @property
     def hint(self) -> str | None:
@@ -103,7 +107,7 @@ def discover(kin: pd.DataFrame, config: RigConfig, name: str, after_reset: bool 
     sel = refit_on_more_samples(sel, kin, config, name, zero_samples)
     meas = sel.meas
     check = None
-    if not model_declared and sel.verdict == "unexplained":
+    if not model_declared and (sel.effects or sel.verdict == "unexplained"):
         check = check_with_base_free(meas, sel.effects)
     effects = sel.effects if check is None else check.kept
     base = meas.simulate_ways(meas.spec(), sel.command_before)

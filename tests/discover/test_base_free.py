@@ -28,3 +28,19 @@ def test_stand_ins_are_dropped_and_the_real_effect_kept(hidden):
     lo, hi = check.intervals["backlash"]
     assert lo <= 0.06 <= hi and check.kept[0].gap == pytest.approx(0.06, rel=0.2)
     assert check.base_off and "pdr calibrate" in check.hint
+
+
+def test_stand_ins_the_search_calls_an_explanation_are_not_named(tmp_path):
+    """A clean recording of an undeclared rig off Table I (stiffer springs, more friction, another motor)
+    that forward selection explains with springs, viscous friction and a driver drop: each stands in for
+    the rig's own base parameters, so the answer names none of them, says ``unexplained`` and asks for
+    a calibration."""
+    from pipeline.derive.stage import ingest_and_derive
+    from pipeline.discover.stage import discover_run
+
+    rig = rigs(seed=14, count=6)[4]
+    paths = write_rig(rig, tmp_path / "raw", seed=14, roles=("clean",), duration_s=15.0)
+    d, doc = discover_run(ingest_and_derive(paths["clean"], tmp_path / "processed")[0])
+    assert d.selection.effects                       # the search did find stand-ins ...
+    assert doc["effects"] == []                      # ... and the answer names none of them
+    assert doc["verdict"] == "unexplained" and "pdr calibrate" in doc["hint"]
