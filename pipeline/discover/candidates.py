@@ -28,6 +28,7 @@ from pipeline.discover.residuals import residuals
 from pipeline.errors import PdrError
 from pipeline.model.effects import CATALOGUE, Effect, Param, PlantSpec
 from pipeline.model.simulate import SimResult
+from pipeline.estimate.start import Start
 
 def _first(name: str) -> Param:
     """The parameter discovery scans: the effect's first (its others are refitted jointly)."""
@@ -64,9 +65,10 @@ class Evaluator:
         self.commands: dict[PlantSpec, np.ndarray] = {}
         self._onset_shift: int | None = None   # the shift the last model's onset search ended on
 
-    def sim(self, effects: tuple[Effect, ...]) -> SimResult:
+    def sim(self, effects: tuple[Effect, ...], start: Start | None = None) -> SimResult:
+        """The replay of the base plus ``effects`` from ``start``, by default the start estimated for it."""
         spec = self.meas.spec(effects)
-        x0 = self.meas.x0(spec)              # estimated per model (the measurement caches it)
+        x0 = self.meas.x0(spec) if start is None else start     # estimated per model (the measurement caches it)
         key = (replace(spec, I0=0.0), x0)
         if key not in self._cache:
             self.simulations += 1
@@ -239,11 +241,22 @@ def scan(ev: Evaluator, base: tuple[Effect, ...], name: str, base_sens: Sensitiv
     """nll over the scan points.  With earlier effects, each point's nll is also predicted
     with their parameters moved by one Gauss-Newton step (sensitivities taken once, at the
     current model; no extra simulation), so a candidate is not judged against an earlier
-    estimate that had absorbed part of it.  The full fit checks the prediction."""
+    estimate that had absorbed part of it.  The full fit checks the prediction.
+
+    A point is first replayed from the model's own start where it changes neither the plant's
+    inputs (the commands in flight at the first sample, the voltage they apply) nor where it rests
+    (a constant torque), which pin the start: a start estimate per point cost as much as the rest of
+    the search.  Around the best point (its neighbours bracket the fit) every point is then replayed
+    from its own start, until the best point's neighbours are all so replayed."""
     grid = _scan(name)
-    losses, bases = [], []
-    for v in grid:
-        r = residuals(ev.meas, ev.sim((*base, make(name, v))))
+    start_spec = ev.meas.spec(base)
+
+    def point(v: float, own: bool) -> tuple[float, tuple[Effect, ...], bool]:
+        effects = (*base, make(name, v))
+        spec = ev.meas.spec(effects)
+        shared = not own and (spec.Td, spec.v_drive, spec.torque) == (start_spec.Td, start_spec.v_drive,
+                                                                       start_spec.torque)
+        r = residuals(ev.meas, ev.sim(effects, ev.meas.x0(replace(start_spec, I0=spec.I0)) if shared else None))
         loss, moved = _nll_of(ev, r), base
         if base and base_sens is not None and loss < FAILED_NLL:
             step, _ = gauss_newton(r, base_sens.jac)
@@ -253,9 +266,17 @@ def scan(ev: Evaluator, base: tuple[Effect, ...], name: str, base_sens: Sensitiv
             loss_p = _nll_of(ev, predicted)
             if loss_p < loss:
                 loss, moved = loss_p, trial
-        losses.append(loss)
-        bases.append(moved)
-    return Scan(grid=grid, nll=np.array(losses), bases=bases)
+        return loss, moved, shared
+
+    points = [point(v, own=False) for v in grid]
+    while True:
+        i = int(np.argmin([p[0] for p in points]))
+        near = [k for k in range(max(i - 1, 0), min(i + 2, len(grid))) if points[k][2]]
+        if not near:
+            break
+        for k in near:
+            points[k] = point(grid[k], own=True)
+    return Scan(grid=grid, nll=np.array([p[0] for p in points]), bases=[p[1] for p in points])
 
 
 def fit_value(ev: Evaluator, base: tuple[Effect, ...], name: str, bracket: tuple[float, float],
