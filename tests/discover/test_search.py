@@ -47,3 +47,19 @@ def test_the_charge_decides_what_is_named(tmp_path, per_parameter, named):
         lo, hi = sel.intervals[0]
         assert lo <= 3e-4 <= hi
     assert all(np.isfinite(c.evidence) for rnd in sel.rounds for c in rnd if hasattr(c, "evidence"))
+
+
+def test_a_scan_scores_its_best_point_and_neighbours_from_their_own_starts(tmp_path):
+    """The coarse scan may replay a point from the model's start (a spring changes neither the inputs nor
+    where the pinion rests), but where the fit will bracket -- the best point and its neighbours -- each
+    point's score is its own model's, start estimated for it, and the best point is the hidden value's."""
+    from pipeline.discover.candidates import _nll_of, make, scan
+    from pipeline.discover.residuals import residuals
+
+    ev = _evaluator((make_effect("spring_stiffness", {"k_scale": 0.8}),), tmp_path)
+    sc = scan(ev, (), "spring_stiffness")
+    best = int(np.argmin(sc.nll))
+    assert sc.grid[best - 1] < 0.8 < sc.grid[best + 1]
+    for k in (best - 1, best, best + 1):
+        own = _nll_of(ev, residuals(ev.meas, ev.sim((make("spring_stiffness", float(sc.grid[k])),))))
+        assert sc.nll[k] == pytest.approx(own, rel=1e-12)

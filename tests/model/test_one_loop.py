@@ -103,3 +103,28 @@ def test_a_prepared_replay_run_from_several_starts_is_each_start_simulated_alone
         run = prepared.run(x0)
         for f in ("t", "theta", "omega", "current", "current_measured", "dir"):
             assert np.array_equal(getattr(run, f), getattr(alone, f)), f
+
+
+@pytest.mark.parametrize("case", list(EFFECTS))
+def test_a_prepared_replay_under_another_command_is_that_command_simulated_alone(case):
+    """``Prepared.under`` keeps the plant and the checked instants and swaps the command replayed (a start
+    estimate tries several pre-log sequences on one window): the same computation as ``simulate`` under
+    that command, and a command it cannot replay is refused as ``simulate`` refuses it."""
+    from pipeline.errors import PdrError
+    from pipeline.model.simulate import Prepared
+
+    spec = default_config().plant_spec(EFFECTS[case])
+    t = np.cumsum(np.where(np.arange(200) % 3 == 0, 0.051, 0.050))
+    log = simulate(spec, t).dir
+    other = -log
+    other[:7] = 0                                    # the motor off for the first samples
+    prepared = Prepared.of(spec, t, dir_log=log, closed_loop=False)
+    for d, dir0 in ((other, -1), (log, 1)):
+        alone = simulate(spec, t, x0=(0.01, 0.2, 0.0), dir0=dir0, dir_log=d, closed_loop=False)
+        run = prepared.under(d, dir0=dir0).run((0.01, 0.2, 0.0))
+        for f in ("t", "theta", "omega", "current", "current_measured", "dir"):
+            assert np.array_equal(getattr(run, f), getattr(alone, f)), f
+    with pytest.raises(PdrError, match="one command per sample"):
+        prepared.under(log[:-1])
+    with pytest.raises(ValueError, match="replay"):
+        Prepared.of(spec, t, dir_log=log).under(log)        # a closed loop is not a replay
