@@ -25,15 +25,14 @@ before the first sample acts only before it, and x0 alone is estimated.
 
 from __future__ import annotations
 
-import itertools
 import math
-from functools import lru_cache
 from dataclasses import replace
 
 import numpy as np
 
 from pipeline.model.effects import PlantSpec
 from pipeline.model.simulate import Prepared, SimResult, with_lost_samples
+from pipeline.estimate.commands_in_flight import command_spread, fit_commands, lead_offsets, pinv
 from pipeline.estimate.start import Start, first_dir
 
 # Samples the estimate uses: the first 2 s (at least 20 samples).  x0 shows most there (the rig's
@@ -52,32 +51,8 @@ REWEIGHTS = 3                    # reweightings by the misfit (stopped once the 
 REFINE_STEPS = 3                 # Gauss-Newton steps for a plant that is not affine in x0
 REFINE_TOLERANCE = 1e-3         # Gauss-Newton stops once a step gains less than this share of the cost
 JACOBIAN_STEP = 1e-3             # of a coefficient (a fraction of the state's typical size)
-# A command change among the pre-log commands is a priori unlikely: the rig reverses about once
-# in 35 samples.  A change costs 2 ln 35 ~ 7 in the weighted squared residual (-2 log of its prior
-# odds), so it is chosen only when the data ask for it (a pulse of the other command and a
-# different initial current can explain the first samples almost equally well).
-SWITCH_PENALTY = 2.0 * np.log(35.0)
-
 # name -> (measured values, noise variance); names "theta" [rad] and "current" [A, as the sensor reads]
 Observed = dict[str, tuple[np.ndarray, float]]
-
-
-def lead_offsets(delay_s: float, period_s: float) -> np.ndarray:
-    """Instants (relative to t0, < 0) of the pre-log commands that reach the motor after t0."""
-    if delay_s <= 0.0:
-        return np.zeros(0)
-    js = [j for j in range(1, int(np.ceil(delay_s / period_s)) + 1) if j * period_s < delay_s - 1e-9]
-    return np.array([-delay_s] + [-j * period_s for j in sorted(js, reverse=True)])
-
-
-@lru_cache(maxsize=None)
-def command_sequences(m: int) -> tuple[tuple[int, ...], ...]:
-    """Pre-log command sequences worth trying: one value, then perhaps another (at most one
-    change of command within a loop delay: the rig reverses every ~1.7 s)."""
-    if m == 0:
-        return ((),)
-    out = {(a,) * k + (b,) * (m - k) for a, b in itertools.product((-1, 0, 1), repeat=2) for k in range(m + 1)}
-    return tuple(sorted(out))
 
 
 def _window(t: np.ndarray) -> int:
@@ -210,56 +185,6 @@ def _residual_scale(r: np.ndarray, dof: int) -> float:
         return 1.0
     rho = float(np.clip(np.dot(r[1:], r[:-1]) / np.dot(r, r), 0.0, 0.95))
     return max(1.0, float(np.dot(r, r)) / max(dof - 3, 1)) * (1.0 + rho) / (1.0 - rho)
-
-
-def changes(commands: tuple[int, ...], first: int) -> int:
-    """How often the command changes along the pre-log ``commands`` and into the first logged one."""
-    seq = (*commands, first)
-    return sum(a != b for a, b in zip(seq[:-1], seq[1:]))
-
-
-def _fit_commands(r0: np.ndarray, F: np.ndarray, P: np.ndarray, w: np.ndarray, m: int,
-                  first: int) -> list[tuple[float, tuple[int, ...], np.ndarray]]:
-    """(cost, pre-log commands, coefficients) of every sequence under weights ``w``, most probable
-    first; the cost is the weighted squared residual plus the prior's ``SWITCH_PENALTY`` per change."""
-    Fw = F * w[:, None]
-    normal = Fw.T @ Fw
-    inverse = _pinv(normal)
-    out = []
-    for c, cf in zip(command_sequences(m), _sequence_arrays(m)):
-        target = (r0 - P @ cf) * w if m else r0 * w
-        rhs = Fw.T @ target
-        a = inverse @ rhs
-        cost = float(target @ target - rhs @ a) + SWITCH_PENALTY * changes(c, first)
-        out.append((cost, c, a))
-    return sorted(out, key=lambda item: item[0]) if m else out
-
-
-@lru_cache(maxsize=None)
-def _sequence_arrays(m: int) -> tuple[np.ndarray, ...]:
-    return tuple(np.asarray(c, dtype=float) for c in command_sequences(m))
-
-
-def _pinv(a: np.ndarray) -> np.ndarray:
-    """``np.linalg.pinv(a)`` of a real matrix, to the bit (its own steps at its default rcond), without
-    its ~30 us of argument handling: a start estimate takes one per reweighting of a 3x3 normal matrix."""
-    u, s, vt = np.linalg.svd(a, full_matrices=False)
-    large = s > 1e-15 * np.max(s)
-    s = np.divide(1.0, s, where=large, out=s)
-    s[~large] = 0.0
-    return np.matmul(vt.T, np.multiply(s[:, np.newaxis], u.T))
-
-
-def _spread(fits: list, Phi: np.ndarray, scale: float) -> np.ndarray:
-    """Covariance of x0 across the command sequences, weighted by their posterior probability:
-    a switch in flight and a different initial current can explain the first samples almost
-    equally well, and the interval must say so."""
-    costs = np.array([f[0] for f in fits])
-    p = np.exp(-(costs - costs[0]) / (2.0 * scale))
-    p /= p.sum()
-    x = np.array([Phi @ f[2] for f in fits])
-    d = x - x[0]
-    return (d * p[:, None]).T @ d
 
 
 def _jacobian(p: _Problem, a: np.ndarray, commands) -> np.ndarray:
@@ -401,7 +326,7 @@ class StartEstimator:
         best = None
         for variances in _first_weights(p):
             for _ in range(REWEIGHTS):
-                fits = _fit_commands(r0, F, P, p.weights(variances), p.m, int(p.log[0]))
+                fits = fit_commands(r0, F, P, p.weights(variances), p.m, int(p.log[0]))
                 _, commands, a = fits[0]
                 residual = r0 - P @ np.asarray(commands, dtype=float) - F @ a
                 previous, variances = variances, p.variances(residual)
@@ -436,7 +361,7 @@ class StartEstimator:
         p.forget_runs()
         Jw = J * w[:, None]
         scale = _residual_scale(residual * w, p.dof)
-        cov_x = Phi @ (scale * _pinv(Jw.T @ Jw)) @ Phi.T + _spread(fits, fit_phi, scale)
+        cov_x = Phi @ (scale * pinv(Jw.T @ Jw)) @ Phi.T + command_spread(fits, fit_phi, scale)
         sigma = np.sqrt(np.clip(np.diag(cov_x), 0.0, None))
         return Start(x0=tuple(float(v) for v in x0), sigma=tuple(float(v) for v in sigma),
                      lead_s=tuple(float(v) for v in p.lead), commands=tuple(int(c) for c in commands),

@@ -10,7 +10,7 @@ from pipeline.config import default_config
 from pipeline.model.effects import make_effect
 from pipeline.model.simulate import sample_times, simulate
 from pipeline.validate.compare import initial_state, simulate_both
-from pipeline.estimate.initial_state import command_sequences, lead_offsets
+from pipeline.estimate.commands_in_flight import command_sequences, lead_offsets
 from pipeline.estimate.start import Start
 from tests.validate.synthetic import AMPS_PER_STEP, COUNTS_PER_REV, synthetic_run
 
