@@ -26,9 +26,9 @@ from pipeline.discover.joint import (Sensitivity, effect_intervals, gauss_newton
 from pipeline.discover.measurement import Measurement
 from pipeline.discover.residuals import residuals
 from pipeline.errors import PdrError
+from pipeline.estimate.start import Start
 from pipeline.model.effects import CATALOGUE, Effect, Param, PlantSpec
 from pipeline.model.simulate import SimResult
-from pipeline.estimate.start import Start
 
 def _first(name: str) -> Param:
     """The parameter discovery scans: the effect's first (its others are refitted jointly)."""

@@ -30,10 +30,10 @@ from dataclasses import replace
 
 import numpy as np
 
-from pipeline.model.effects import PlantSpec
-from pipeline.model.simulate import Prepared, SimResult, with_lost_samples
 from pipeline.estimate.commands_in_flight import command_spread, fit_commands, lead_offsets, pinv
 from pipeline.estimate.start import Start, first_dir
+from pipeline.model.effects import PlantSpec
+from pipeline.model.simulate import Prepared, SimResult, with_lost_samples
 
 # Samples the estimate uses: the first 2 s (at least 20 samples).  x0 shows most there (the rig's
 # oscillatory mode decays in ~1.2 s) and a model error has had little time to grow.  A model
