@@ -45,14 +45,14 @@ def changes(commands: tuple[int, ...], first: int) -> int:
 
 
 def fit_commands(r0: np.ndarray, F: np.ndarray, P: np.ndarray, w: np.ndarray, m: int,
-                  first: int) -> list[tuple[float, tuple[int, ...], np.ndarray]]:
+                 first: int) -> list[tuple[float, tuple[int, ...], np.ndarray]]:
     """(cost, pre-log commands, coefficients) of every sequence under weights ``w``, most probable
     first; the cost is the weighted squared residual plus the prior's ``SWITCH_PENALTY`` per change."""
     Fw = F * w[:, None]
     normal = Fw.T @ Fw
     inverse = pinv(normal)
     out = []
-    for c, cf in zip(command_sequences(m), sequence_arrays(m)):
+    for c, cf in zip(command_sequences(m), _sequence_arrays(m)):
         target = (r0 - P @ cf) * w if m else r0 * w
         rhs = Fw.T @ target
         a = inverse @ rhs
@@ -62,7 +62,8 @@ def fit_commands(r0: np.ndarray, F: np.ndarray, P: np.ndarray, w: np.ndarray, m:
 
 
 @lru_cache(maxsize=None)
-def sequence_arrays(m: int) -> tuple[np.ndarray, ...]:
+def _sequence_arrays(m: int) -> tuple[np.ndarray, ...]:
+    """``command_sequences(m)`` as float vectors, built once (``fit_commands`` asks per reweighting)."""
     return tuple(np.asarray(c, dtype=float) for c in command_sequences(m))
 
 
