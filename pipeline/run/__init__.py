@@ -40,12 +40,13 @@ def run_command(
 
     Example: pdr run --raw raw --processed processed -j 2   (or --cluster tcp://HOST:8786)
     """
-    from pipeline.run.stop import stop_signals, stopped_by
+    from pipeline.run.stop import nothing_left_to_stop, stop_signals, stopped_by
 
     with stop_signals():
         try:
             report = run_pipeline(raw, processed, jobs=jobs, force=force, show_progress=sys.stderr.isatty(),
                                   cluster=cluster or None)
+            nothing_left_to_stop()
             print_report(report, processed)
         except BaseException as err:            # a stop is said here: typer turns it into a silent exit 130
             if (stop := stopped_by(err)) is None:

@@ -37,7 +37,7 @@ from pipeline.run.report import RunReport
 from pipeline.run.pool import chunks, make_pool
 from pipeline.run.stages import derive_ahead, failed_ahead, ingest_ahead, process_chunk
 from pipeline.run.stamp import Stamp, code_version, previous_runs, prune_orphans, stamp_for, up_to_date, withdraw
-from pipeline.run.stop import stopped_by
+from pipeline.run.stop import stopped_by, stops_deferred
 from pipeline.runs import SUMMARY_CSV
 
 
@@ -46,28 +46,39 @@ def _isolated(csv: Path, processed: Path, stamp: Stamp, method: str | None) -> d
 
     with make_pool(1, method) as pool:
         try:
-            return pool.submit(process_chunk, [(csv, stamp)], processed).result()[0]
+            with stops_deferred():
+                future = pool.submit(process_chunk, [(csv, stamp)], processed)
+            return future.result()[0]
         except BrokenProcessPool as err:
             withdraw(processed, previous_runs(processed, csv))
             return {"recording": csv.name, "status": "failed", "runs": [],
                     "error": f"the worker process died while processing it ({err})", "timing_s": {}}
 
 
-def _start_pool(pool) -> None:
-    """Start the pool's workers (returns when one has run a task).
+def _start_pool(pool, spawned: threading.Event) -> None:
+    """Start the pool's first worker (returns when it has run a task); ``spawned`` is set once the
+    pool knows that worker's process (or its start failed), so a stop can wait for it and end it.
 
     Whatever goes wrong here the main thread sees on its own submissions: a pool that broke while
     starting (each recording is then retried alone), or one stopped by Ctrl-C or SIGTERM (the
     forkserver gone: ``EOFError``; the pool shut: ``RuntimeError``).  Nothing is printed from here."""
     try:
-        pool.submit(os.getpid).result()
+        try:
+            future = pool.submit(os.getpid)
+        finally:
+            spawned.set()
+        future.result()
     except BaseException:  # noqa: BLE001  (a thread's error would be printed as a traceback)
         pass
 
 
-def _stop_workers(pool, processed: Path) -> None:
+def _stop_workers(pool, processed: Path, spawned: threading.Event) -> None:
     """After Ctrl-C or SIGTERM: end the workers now (they ignore SIGINT, and a chunk can take seconds),
-    then remove the temporaries they leave; every output is written by rename, so none is torn."""
+    then remove the temporaries they leave; every output is written by rename, so none is torn.
+
+    The first worker may still be starting (the forkserver imports for ~2 s first): it is waited
+    for, or it would read the pool's queues after this process has removed them."""
+    spawned.wait(timeout=60)
     for proc in list((pool._processes or {}).values()):     # the executor keeps no public handle on them
         proc.terminate()
     pool.shutdown(wait=True, cancel_futures=True)
@@ -139,7 +150,8 @@ def _execute(todo: list[tuple[Path, Stamp]], processed: Path, jobs: int, show_pr
     pool = make_pool(min(jobs, len(todo)), method)
     # The first submit blocks until the workers have imported everything (~1.5 s on one core), which
     # the whole run waits for: it is made first, and waits in a thread while this one ingests.
-    starting = threading.Thread(target=_start_pool, args=(pool,), daemon=True)
+    spawned = threading.Event()
+    starting = threading.Thread(target=_start_pool, args=(pool, spawned), daemon=True)
     starting.start()
     try:
         with _shared_folder() as backgrounds, _progress(show_progress) as bar:
@@ -158,9 +170,10 @@ def _execute(todo: list[tuple[Path, Stamp]], processed: Path, jobs: int, show_pr
                 futures = {}
                 for chunk in chunks(todo, jobs):
                     try:
-                        futures[pool.submit(process_chunk, chunk, processed,
-                                            {c.name: ahead[c.name] for c, _s in chunk if c.name in ahead},
-                                            dataset=True, backgrounds=backgrounds)] = chunk
+                        with stops_deferred():      # a submit may start a worker (pipeline.run.stop)
+                            futures[pool.submit(process_chunk, chunk, processed,
+                                                {c.name: ahead[c.name] for c, _s in chunk if c.name in ahead},
+                                                dataset=True, backgrounds=backgrounds)] = chunk
                     except BrokenProcessPool:           # the pool died already (while starting): retried below
                         broken.extend(chunk)
                 for fut in as_completed(futures):
@@ -175,7 +188,7 @@ def _execute(todo: list[tuple[Path, Stamp]], processed: Path, jobs: int, show_pr
             except BaseException as err:        # Ctrl-C or SIGTERM (pipeline.run.stop), whatever it surfaced as
                 if (stop := stopped_by(err)) is None:
                     raise
-                _stop_workers(pool, processed)
+                _stop_workers(pool, processed, spawned)
                 raise stop from None
             pool.shutdown()
             # A worker that dies (e.g. a crash in a native library) takes every pending recording

@@ -49,16 +49,42 @@ def children_ignore_sigint() -> Iterator[None]:
 
 
 _received: list[Stopped] = []       # the stops signals raised during ``stop_signals``
+_deferring = 0                      # depth of ``stops_deferred`` in the main thread
+
+
+def _stop(stop: Stopped) -> None:
+    _received.append(stop)
+    if not _deferring:
+        raise stop
 
 
 def _raise_terminated(signum: int, frame: object) -> None:
-    _received.append(Stopped(TERMINATED, 128 + signum))
-    raise _received[-1]
+    _stop(Stopped(TERMINATED, 128 + signum))
 
 
 def _raise_interrupted(signum: int, frame: object) -> None:
-    _received.append(Stopped())
-    raise _received[-1]
+    _stop(Stopped())
+
+
+@contextmanager
+def stops_deferred() -> Iterator[None]:
+    """A stop that comes during the block is raised at its end, not inside it.
+
+    Around a worker's start: raised between the start and the pool's record of
+    the new process, the stop would leave a worker nobody stops, which reads its
+    queues after this process has removed them (a traceback on the terminal)."""
+    global _deferring
+    if not _in_main_thread():
+        yield
+        return
+    before = len(_received)
+    _deferring += 1
+    try:
+        yield
+    finally:
+        _deferring -= 1
+    if len(_received) > before and not _deferring:
+        raise _received[-1]
 
 
 def stopped_by(err: BaseException) -> Stopped | None:
@@ -88,6 +114,16 @@ def stop_signals() -> Iterator[None]:
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, previous_term)
-        signal.signal(signal.SIGINT, previous_int)
+        if signal.getsignal(signal.SIGTERM) is _raise_terminated:     # not once nothing is left to stop
+            signal.signal(signal.SIGTERM, previous_term)
+            signal.signal(signal.SIGINT, previous_int)
         _received.clear()
+
+
+def nothing_left_to_stop() -> None:
+    """Every recording is done: a stop from here to the process's end would only cut the summary short
+    (or kill the process as it exits, with the status of a signal), so SIGINT and SIGTERM are ignored
+    and the status is the run's."""
+    if _in_main_thread():
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        signal.signal(signal.SIGINT, signal.SIG_IGN)

@@ -6,7 +6,7 @@ import time
 
 import pytest
 
-from pipeline.run.stop import Stopped, stop_signals, stopped_by
+from pipeline.run.stop import Stopped, nothing_left_to_stop, stop_signals, stopped_by, stops_deferred
 
 
 def _signalled(sig: int) -> BaseException:
@@ -38,3 +38,28 @@ def test_a_failure_of_its_own_is_not_a_stop():
         _signalled(signal.SIGTERM)
     with stop_signals():                                    # a stop is forgotten with the block it ended
         assert stopped_by(ImportError("initialization failed")) is None
+
+
+@pytest.mark.parametrize("sig, status", [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
+def test_a_stop_during_a_deferred_block_is_raised_at_its_end_and_not_inside(sig, status):
+    reached_end = False
+    with stop_signals(), pytest.raises(Stopped) as raised:
+        with stops_deferred():
+            os.kill(os.getpid(), sig)
+            time.sleep(0.2)                                 # the handler has run by now, and raised nothing
+            reached_end = True
+    assert reached_end and raised.value.exit_status == status
+
+
+def test_once_nothing_is_left_to_stop_a_stop_is_ignored_to_the_end():
+    previous = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
+    try:
+        with stop_signals():
+            nothing_left_to_stop()
+            os.kill(os.getpid(), signal.SIGTERM)
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.2)
+        assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN         # also after the block
+    finally:
+        signal.signal(signal.SIGINT, previous[0])
+        signal.signal(signal.SIGTERM, previous[1])
