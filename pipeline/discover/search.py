@@ -311,9 +311,18 @@ def _zero_beside_structure(effect: Effect, ex_after: dict[str, float], policy: D
 
 
 def _settled(meas: Measurement, effects: tuple[Effect, ...]) -> Measurement:
+    """The ambiguous inferred switches settled under ``effects``, each timing judged by the pattern it
+    leaves in each signal about its own mean: a level the model misses (a sensor's offset, where a
+    constant torque rests the springs) moves both timings alike, and judged with it the timing went
+    whichever way the missing level leaned."""
     spec = meas.spec(effects)
-    probe = Evaluator(meas, noise_floor(meas))
-    return settle_switches(meas, lambda m: probe.nll(m.replay(spec)))
+    floor = noise_floor(meas)
+
+    def nll(m: Measurement) -> float:
+        res = residuals(m, m.replay(spec))
+        return float(sum(0.5 * len(r) * np.log(np.var(r) + 1e-3 * floor[s]) for s, r in res.items()))
+
+    return settle_switches(meas, nll)
 
 
 def _search(meas: Measurement, names: tuple[str, ...], policy: DiscoveryPolicy, spent: int = 0) -> Selection:

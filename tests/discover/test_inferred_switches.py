@@ -1,0 +1,40 @@
+"""A recording without a logged command: the command is inferred from the guards, and a switch whose
+angle lies on a guard (within half a count) may have come a sample later.  Discovery settles it by the
+pattern each timing leaves, so a sensor offset and a constant torque the base model lacks do not."""
+
+import numpy as np
+import pytest
+
+from pipeline.derive.stage import ingest_and_derive
+from pipeline.discover.measurement import ambiguous_switches
+from pipeline.discover.stage import discover_run
+from pipeline.rig.randomised import randomised_setup
+from pipeline.rig.recording import make_recording, write_recording
+
+# a randomised draw: an 87 ms sketch logging micros() without its command, a current-sensor offset, a
+# constant torque and a driver drop hidden, one switch whose angle is on the guard to the count
+DRAW = (399965806, 48)
+
+
+@pytest.fixture(scope="module")
+def discovered(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("inferred")
+    draw = randomised_setup(np.random.default_rng(list(DRAW)))
+    write_recording(make_recording(draw.setup), tmp / "raw", "r")
+    d, doc = discover_run(ingest_and_derive(tmp / "raw" / "r.csv", tmp / "processed")[0])
+    return draw, d, doc
+
+
+def test_the_recording_has_a_switch_on_a_guard(discovered):
+    draw, d, _ = discovered
+    assert not draw.conventions["dir"] and ambiguous_switches(d.selection.meas)
+
+
+def test_the_hidden_effects_are_named_within_a_fifth(discovered):
+    draw, _, doc = discovered
+    assert doc["verdict"] == "explained"
+    found = {e["name"]: e["parameters"] for e in doc["effects"]}
+    assert set(found) == {e.name for e in draw.effects}
+    for e in draw.effects:
+        for p, v in e.parameters.items():
+            assert found[e.name][p] == pytest.approx(v, rel=0.2), (e.name, p)
