@@ -320,7 +320,8 @@ def _settled(meas: Measurement, effects: tuple[Effect, ...]) -> Measurement:
 
     def nll(m: Measurement) -> float:
         res = residuals(m, m.replay(spec))
-        return float(sum(0.5 * len(r) * np.log(np.var(r) + 1e-3 * floor[s]) for s, r in res.items()))
+        total = sum(0.5 * len(r) * np.log(np.var(r) + 1e-3 * floor[s]) for s, r in res.items())
+        return float(total) if np.isfinite(total) else np.inf      # a replay that failed is never chosen
 
     return settle_switches(meas, nll)
 
