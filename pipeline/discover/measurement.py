@@ -244,7 +244,6 @@ class Measurement:
         return start.simulate(spec, t[:m], dir_log[:m], closed_loop=closed_loop, angle=self.theta[:m])
 
 
-
 # Discovery fits the first MAX_SAMPLES samples of a longer recording: each candidate costs a few
 # dozen replays, and the 10 s budget holds for about this many (100 s of a 50 ms sketch).
 MAX_SAMPLES = 2000
@@ -256,50 +255,6 @@ OFFSET_STEP = 1e-3
 # different, and each distinct step costs the simulator a matrix exponential; moving an instant
 # by <= 50 us moves the angle by < w * 5e-5 ~ 1e-4 rad, a third of one encoder count's noise.
 SIM_GRID_S = 1e-4
-
-
-def ambiguous_switches(meas: Measurement) -> list[int]:
-    """Samples where an inferred command may be off by one sample: the measured angle is within
-    half an encoder count of a guard, so the controller (which saw the unrounded angle, or a
-    count rounded the other way) may have decided one sample later or earlier."""
-    if meas.dir_source != "inferred":
-        return []
-    half = np.pi / meas.config.encoder.counts_per_rev
-    g = meas.config.controller.guard_rad
-    near = (np.abs(meas.theta - g) <= half) | (np.abs(meas.theta + g) <= half)
-    return [int(k) for k in np.flatnonzero(near) if 0 < k < meas.n - 1 and meas.dir[k] != 0]
-
-
-def settle_switches(meas: Measurement, nll) -> Measurement:
-    """Decide each ambiguous inferred switch (``ambiguous_switches``) by which timing the rig's
-    model replays better (``nll(measurement) -> float``), one at a time in time order."""
-    for k in ambiguous_switches(meas):
-        d = meas.dir
-        options = []
-        if d[k] != d[k - 1] and d[k - 1] != 0:          # switched at k: perhaps only at k + 1
-            alt = d.copy()
-            alt[k] = d[k - 1]
-            options.append(alt)
-        elif d[k + 1] != d[k] and d[k] != 0:            # switched at k + 1 (settled so before): perhaps at k
-            alt = d.copy()
-            alt[k] = d[k + 1]
-            options.append(alt)
-        elif d[k + 1] == d[k]:                          # did not switch at k: perhaps it did
-            alt = d.copy()
-            g_sign = 1 if meas.theta[k] > 0 else -1
-            nxt = np.flatnonzero(d[k + 1:] != d[k])
-            end = k + 1 + (int(nxt[0]) if len(nxt) else meas.n - k - 1)
-            if d[k] == g_sign:                          # moving towards this guard: reverse from k on
-                alt[k:end] = -d[k]
-                options.append(alt)
-        best, best_nll = meas, nll(meas)
-        for alt in options:
-            trial = replace(meas, dir=alt)
-            value = nll(trial)
-            if value < best_nll:
-                best, best_nll = trial, value
-        meas = best
-    return meas
 
 
 def _column(kin: pd.DataFrame, name: str) -> np.ndarray | None:

@@ -42,7 +42,8 @@ import numpy as np
 
 from pipeline.discover.candidates import Evaluator, Fit, fit_candidate, fold_fit, folds_by_cycle, scan
 from pipeline.discover.joint import effect_intervals, joint_fit, sensitivity
-from pipeline.discover.measurement import Measurement, ambiguous_switches, settle_switches
+from pipeline.discover.inferred_switches import ambiguous_switches, settled
+from pipeline.discover.measurement import Measurement
 from pipeline.discover.policy import DEFAULT_POLICY, DiscoveryPolicy
 from pipeline.discover.residuals import noise_floor, residuals
 from pipeline.discover.start_refit import held_start_sensitivity, hold_offset_of, refine_start
@@ -310,22 +311,6 @@ def _zero_beside_structure(effect: Effect, ex_after: dict[str, float], policy: D
     return bool(signal) and any(x > policy.structure_floors for s, x in ex_after.items() if s != signal)
 
 
-def _settled(meas: Measurement, effects: tuple[Effect, ...]) -> Measurement:
-    """The ambiguous inferred switches settled under ``effects``, each timing judged by the pattern it
-    leaves in each signal about its own mean: a level the model misses (a sensor's offset, where a
-    constant torque rests the springs) moves both timings alike, and judged with it the timing went
-    whichever way the missing level leaned."""
-    spec = meas.spec(effects)
-    floor = noise_floor(meas)
-
-    def nll(m: Measurement) -> float:
-        res = residuals(m, m.replay(spec))
-        total = sum(0.5 * len(r) * np.log(np.var(r) + 1e-3 * floor[s]) for s, r in res.items())
-        return float(total) if np.isfinite(total) else np.inf      # a replay that failed is never chosen
-
-    return settle_switches(meas, nll)
-
-
 def _search(meas: Measurement, names: tuple[str, ...], policy: DiscoveryPolicy, spent: int = 0) -> Selection:
     """The rounds, further starts, elimination and verdict on one settling of the switches; ``spent``: the
     work of an earlier search on the recording (the budgets bound them together)."""
@@ -397,10 +382,10 @@ def select(meas: Measurement, names: tuple[str, ...] | None = None,
         names = tuple(n for n in names if not only_a_constant_torque(meas, n))
     if not ambiguous_switches(meas):
         return _search(meas, names, policy)
-    first = _search(_settled(meas, ()), names, policy)
+    first = _search(settled(meas, ()), names, policy)
     if first.verdict != "unexplained" or not first.effects:
         return first
-    again = _settled(meas, first.effects)
+    again = settled(meas, first.effects)
     if np.array_equal(again.dir, first.meas.dir) or first.work > policy.total_work_budget:
         return first
     second = _search(again, names, policy, spent=first.work)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from pipeline.derive.stage import ingest_and_derive
-from pipeline.discover.measurement import ambiguous_switches
+from pipeline.discover.inferred_switches import ambiguous_switches
 from pipeline.discover.stage import discover_run
 from pipeline.rig.randomised import randomised_setup
 from pipeline.rig.recording import make_recording, write_recording
