@@ -9,25 +9,34 @@ parameters free within their prior (Table I with ``TABLE_I_TOLERANCE``, under ca
 convention), by the estimation core: one likelihood, each effect charged for all its parameters
 (BIC), each dropped whose removal costs less than its charge.  Effects that are base parameters
 under another name (viscous friction, spring stiffness, rack inertia) rarely survive this: without a
-calibration they cannot be told from the rig's own values.  Where the check drops an effect, the
-verdict is ``unexplained`` (``stage.Discovery.verdict``); where the base model itself is off
-(freeing it gains more than its parameters' charge), the answer says so and asks for a calibration.
+calibration they cannot be told from the rig's own values.  Where the base itself is off, the search's
+choice was made against the wrong base, and the effect that is there may be missing from it (a backlash
+read as a Coulomb friction): the catalogue is offered again with the base free, in forward steps by the
+same criterion, each at a nameable size (``policy``) and followed by elimination; an effect that is a base
+parameter under another name is not offered (it could only gain by leaving the base's prior).
+
+Where the check drops an effect, the verdict is ``unexplained`` (``stage.Discovery.verdict``); where
+the base model itself is off (freeing it gains more than its parameters' charge), the answer says so
+and asks for a calibration.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
 from pipeline.calibrate.structure import base_unknowns
 from pipeline.discover.measurement import Measurement
-from pipeline.discover.residuals import target_of
+from pipeline.discover.policy import DEFAULT_POLICY, DiscoveryPolicy
+from pipeline.discover.residuals import noise_floor, target_of
+from pipeline.discover.search import beyond_zero_error, nameable
 from pipeline.estimate import FitResult, Model, Problem, effect_unknowns
-from pipeline.model.effects import Effect
+from pipeline.model.effects import CATALOGUE, Effect
 
 HINT = ("the rig's [model] is not declared and the recording does not fit Table I's base model: run "
         "`pdr calibrate` on two clean recordings of this rig (with --adopt), then discover again")
+MAX_EFFECTS = 3      # as the search's ``policy.max_effects``
 MAX_NFEV = 60        # per fit: the base free from Table I converges in a few dozen evaluations
 
 
@@ -35,6 +44,7 @@ MAX_NFEV = 60        # per fit: the base free from Table I converges in a few do
 class BaseFreeCheck:
     kept: tuple[Effect, ...]              # the effects whose evidence holds with the base free, refitted
     dropped: tuple[str, ...]
+    added: tuple[str, ...]                # not found by the search: named with the base free (where it is off)
     base_off: bool                        # freeing the base gains more than its parameters' charge
     chi2: dict[str, float]                # criterion values (inflation-weighted chi-square) of the models compared
     intervals: dict[str, tuple[float, float]]   # each kept effect's first parameter, ~95 % (covariance of its fit)
@@ -44,15 +54,20 @@ class BaseFreeCheck:
         return HINT if self.base_off or self.dropped else None
 
     def to_json(self) -> dict:
-        return {"kept": [e.name for e in self.kept], "dropped": list(self.dropped), "base_off": self.base_off,
+        return {"kept": [e.name for e in self.kept], "dropped": list(self.dropped), "added": list(self.added),
+                "base_off": self.base_off,
                 "criterion": "BIC on the inflation-weighted chi-square, every free parameter charged",
                 "chi2": self.chi2}
 
 
-def _fit(meas: Measurement, effects: tuple[Effect, ...], base_free: bool, factors=None) -> FitResult:
+def _fit(meas: Measurement, effects: tuple[Effect, ...], base_free: bool, factors=None,
+         base_start: dict[str, float] | None = None) -> FitResult:
+    """``base_start``: where the free base parameters start (their prior stays Table I's)."""
     unknowns = [u for e in effects for u in effect_unknowns(e)]
     if base_free:
-        unknowns = base_unknowns(meas.config.model, declared=False) + unknowns
+        base = base_unknowns(meas.config.model, declared=False)
+        start = base_start or {}
+        unknowns = [replace(u, start=start.get(u.name, u.start)) for u in base] + unknowns
     problem = Problem((target_of(meas),), Model(base=meas.config.model, effects=effects), tuple(unknowns))
     return problem.fit(max_nfev=MAX_NFEV, factors=factors)
 
@@ -62,35 +77,83 @@ def _effects_at(res: FitResult, effects: tuple[Effect, ...]) -> tuple[Effect, ..
     return tuple(type(e)(**{p: values.get(f"{e.name}.{p}", v) for p, v in e.parameters.items()}) for e in effects)
 
 
-def check_with_base_free(meas: Measurement, effects: tuple[Effect, ...]) -> BaseFreeCheck:
-    """Backward elimination from ``effects`` with the base free; then whether the base itself is off.
+def check_with_base_free(meas: Measurement, effects: tuple[Effect, ...], names: tuple[str, ...] | None = None,
+                         policy: DiscoveryPolicy = DEFAULT_POLICY) -> BaseFreeCheck:
+    """Stepwise selection with the base free, from the search's ``effects``: backward elimination, then,
+    where the base itself is off, forward over the catalogue (``names``) too, each step followed by
+    elimination.  The search chose on Table I's base; where that base is off, what it chose stands in
+    for it as often as not, and the effect that is there may not have been found at all (a backlash
+    beside a stiffer spring read as a Coulomb friction), so the catalogue is offered again.
 
-    The inflation of each signal is measured once, on the fullest model (base free and every effect),
+    The inflation of each signal is measured once, on the search's fullest model with the base free,
     and every model compared is scored with it, so their chi-squares are one likelihood."""
+    names = tuple(CATALOGUE) if names is None else names
     full = _fit(meas, effects, base_free=True)
     factors = full.factors
     penalty = np.log(max(full.n_data, 2))
-    chi2 = {"base free + " + ("+".join(e.name for e in effects) or "nothing"): full.data_chi2}
-    kept, current = tuple(effects), full
-    dropped: list[str] = []
-    while kept:
-        trials = []
-        for i, e in enumerate(kept):
-            rest = kept[:i] + kept[i + 1:]
-            res = _fit(meas, rest, base_free=True, factors=factors)
-            chi2["base free + " + ("+".join(x.name for x in rest) or "nothing")] = res.data_chi2
-            # what keeping e buys, less its charge (all its parameters)
-            trials.append((res.data_chi2 - current.data_chi2 - len(e.PARAMS) * penalty, i, res))
-        gain, i, res = min(trials, key=lambda x: x[0])
-        if gain >= 0.0:
-            break
-        dropped.append(kept[i].name)
-        kept, current = kept[:i] + kept[i + 1:], res
-    fixed = _fit(meas, _effects_at(current, kept), base_free=False, factors=factors)
+    chi2 = {_label("base free", effects): full.data_chi2}
+
+    def fit(trial: tuple[Effect, ...], near: FitResult, base_free: bool = True) -> FitResult:
+        # from the base of the model ``near`` (a few evaluations, not a climb from Table I each time)
+        res = _fit(meas, trial, base_free=base_free, factors=factors, base_start=near.values)
+        chi2[_label("base free" if base_free else "Table I", trial)] = res.data_chi2
+        return res
+
+    def eliminate(kept: tuple[Effect, ...], current: FitResult) -> tuple[tuple[Effect, ...], FitResult]:
+        while kept:
+            # what keeping each buys, less its charge (all its parameters): the cheapest goes first
+            trials = [(fit(kept[:i] + kept[i + 1:], current), i) for i in range(len(kept))]
+            res, i = min(trials, key=lambda t: t[0].data_chi2 - current.data_chi2 - len(kept[t[1]].PARAMS) * penalty)
+            if res.data_chi2 - current.data_chi2 - len(kept[i].PARAMS) * penalty >= 0.0:
+                break
+            dropped.append(kept[i].name)
+            kept, current = _effects_at(res, kept[:i] + kept[i + 1:]), res
+        return kept, current
+
+    def base_is_off(kept: tuple[Effect, ...], current: FitResult) -> tuple[bool, FitResult]:
+        fixed = fit(kept, current, base_free=False)
+        return fixed.data_chi2 - current.data_chi2 > n_base * penalty, fixed
+
     n_base = len(base_unknowns(meas.config.model, declared=False))
-    chi2["Table I + " + ("+".join(e.name for e in kept) or "nothing")] = fixed.data_chi2
-    base_off = fixed.data_chi2 - current.data_chi2 > n_base * penalty
+    floor = noise_floor(meas)
+    dropped: list[str] = []
+    kept, current = eliminate(_effects_at(full, effects), full)
+    base_off, fixed = base_is_off(kept, current)
+    added: list[str] = []
+    while base_off and len(kept) < MAX_EFFECTS:
+        others = [n for n in names if n not in {e.name for e in kept} and not a_base_parameter(meas, n)]
+        trials = [(fit(trial, current), trial) for trial in ((*kept, CATALOGUE[n].typical()) for n in others)]
+        # as in the search: the one that gains most of those that clear their charge at a nameable size
+        clearing = [(res, _effects_at(res, trial)) for res, trial in trials
+                    if current.data_chi2 - res.data_chi2 > len(trial[-1].PARAMS) * penalty]
+        clearing = [(res, trial) for res, trial in clearing
+                    if nameable(trial[-1], policy) and beyond_zero_error(trial[-1], meas, floor, policy)]
+        if not clearing:
+            break
+        res, trial = min(clearing, key=lambda t: t[0].data_chi2 + len(t[1][-1].PARAMS) * penalty)
+        name = trial[-1].name
+        added.append(name)
+        kept, current = eliminate(trial, res)
+        if name not in {e.name for e in kept}:
+            break                                     # added, then dropped: the steps go round
+        base_off, fixed = base_is_off(kept, current)
     final = current if base_off else fixed
     intervals = {e.name: final.wald_interval(f"{e.name}.{e.PARAMS[0].name}") for e in kept}
-    return BaseFreeCheck(kept=_effects_at(final, kept), dropped=tuple(dropped), base_off=bool(base_off), chi2=chi2,
+    names_kept = {e.name for e in kept}
+    return BaseFreeCheck(kept=_effects_at(final, kept), dropped=tuple(n for n in dict.fromkeys(dropped)
+                                                                       if n not in names_kept),
+                         added=tuple(n for n in added if n in names_kept), base_off=bool(base_off), chi2=chi2,
                          intervals=intervals)
+
+
+def a_base_parameter(meas: Measurement, name: str) -> bool:
+    """Whether the effect changes nothing in the plant but its base parameters (viscous friction is b,
+    a rack's inertia J, the springs' scale K): with the base free it is the base under another name,
+    and all it could gain is an escape from the base's prior."""
+    base = meas.spec()
+    spec = meas.spec((CATALOGUE[name].typical(),))
+    return [f.name for f in fields(base) if getattr(base, f.name) != getattr(spec, f.name)] == ["params"]
+
+
+def _label(base: str, effects: tuple[Effect, ...]) -> str:
+    return f"{base} + " + ("+".join(e.name for e in effects) or "nothing")

@@ -170,14 +170,14 @@ def structure_share(fit: Fit, floor: dict[str, float], n: int, policy: Discovery
     return float(max(shares, default=0.0))
 
 
-def beyond_zero_error(fit: Fit, meas: Measurement, floor: dict[str, float], policy: DiscoveryPolicy) -> bool:
+def beyond_zero_error(effect: Effect, meas: Measurement, floor: dict[str, float], policy: DiscoveryPolicy) -> bool:
     """Whether a sensor's offset stands ``zero_sigmas`` clear of the error of the zero ingest read off rest
     readings (a nuisance: their mean, with the noise floor over their number as its variance)."""
-    p = CATALOGUE[fit.name].PARAMS[0]
+    p = effect.PARAMS[0]
     rest = meas.zero_samples.get(p.zero_of, 0)
     if not rest or p.zero_of not in floor:
         return True
-    return abs(fit.value - p.absent) > policy.zero_sigmas * float(np.sqrt(floor[p.zero_of] / rest))
+    return abs(effect.parameters[p.name] - p.absent) > policy.zero_sigmas * float(np.sqrt(floor[p.zero_of] / rest))
 
 
 def residual_taus(ev: Evaluator, effects: tuple[Effect, ...]) -> dict[str, float]:
@@ -221,6 +221,12 @@ def only_a_constant_torque(meas: Measurement, name: str) -> bool:
     return [f.name for f in fields(base) if getattr(base, f.name) != getattr(spec, f.name)] == ["torque"]
 
 
+def candidate_names(meas: Measurement, names: tuple[str, ...] | None = None) -> tuple[str, ...]:
+    """The catalogue (or ``names``) less what the recording cannot tell (``only_a_constant_torque``)."""
+    names = tuple(CATALOGUE) if names is None else names
+    return names if meas.angle_reference_known else tuple(n for n in names if not only_a_constant_torque(meas, n))
+
+
 def excess(ev: Evaluator, effects: tuple[Effect, ...]) -> dict[str, float]:
     return {s: m / ev.floor[s] - 1.0 for s, m in ev.mse(ev.sim(effects)).items()}
 
@@ -261,7 +267,7 @@ def _round(ev: Evaluator, effects: tuple[Effect, ...], remaining: list[str], fol
         out.append(Candidate(fit=fit, round=round_, evidence=evidence(fit, residual_taus(ev, fit.effects), ev.meas.n),
                              charge=charge(n, policy), share=structure_share(fit, ev.floor, ev.meas.n, policy),
                              min_share=policy.min_heldout_share,
-                             nameable=nameable(fit.effect, policy) and beyond_zero_error(fit, ev.meas, ev.floor, policy)))
+                             nameable=nameable(fit.effect, policy) and beyond_zero_error(fit.effect, ev.meas, ev.floor, policy)))
     # ranked by one likelihood (the held-out nll each removes, the same for every candidate of the round)
     out.sort(key=lambda c: -c.fit.heldout_nll_gain)
     return out, screened
@@ -377,9 +383,7 @@ def select(meas: Measurement, names: tuple[str, ...] | None = None,
     Inferred switches a sample apart are nuisances: settled by the base model first, and, when
     that leaves structure and effects were found, again by the model with them (the run that
     leaves less structure is kept)."""
-    names = tuple(CATALOGUE) if names is None else names
-    if not meas.angle_reference_known:
-        names = tuple(n for n in names if not only_a_constant_torque(meas, n))
+    names = candidate_names(meas, names)
     if not ambiguous_switches(meas):
         return _search(meas, names, policy)
     first = _search(settled(meas, ()), names, policy)

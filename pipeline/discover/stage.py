@@ -23,7 +23,7 @@ from pipeline.discover.base_free import BaseFreeCheck, check_with_base_free
 from pipeline.discover.declared import check_declared
 from pipeline.discover.longer import refit_on_more_samples
 from pipeline.discover.policy import DEFAULT_POLICY, DiscoveryPolicy
-from pipeline.discover.search import Selection, select
+from pipeline.discover.search import Selection, candidate_names, select
 from pipeline.model.effects import Effect
 from pipeline.model.params import PlantSpec
 from pipeline.model.simulate import MAX_LOST_ROWS, SimResult
@@ -108,7 +108,7 @@ def discover(kin: pd.DataFrame, config: RigConfig, name: str, after_reset: bool 
     meas = sel.meas
     check = None
     if not model_declared and (sel.effects or sel.verdict == "unexplained"):
-        check = check_with_base_free(meas, sel.effects)
+        check = check_with_base_free(meas, sel.effects, candidate_names(meas), policy)
     effects = sel.effects if check is None else check.kept
     base = meas.simulate_ways(meas.spec(), sel.command_before)
     final = meas.simulate_ways(meas.spec(effects), sel.command_after) if effects else base

@@ -30,6 +30,17 @@ def test_stand_ins_are_dropped_and_the_real_effect_kept(hidden):
     assert check.base_off and "pdr calibrate" in check.hint
 
 
+def test_where_the_base_is_off_the_effect_the_search_missed_is_named_in_place_of_its_stand_in(hidden):
+    """The search, on Table I's base, may read a backlash beside the rig's own springs as a Coulomb
+    friction; with the base free the catalogue is offered again, and the backlash is what holds."""
+    check = check_with_base_free(hidden, (CATALOGUE["coulomb_friction"](Tc=0.002),))
+    assert [e.name for e in check.kept] == ["backlash"]
+    assert check.added == ("backlash",) and check.dropped == ("coulomb_friction",)
+    lo, hi = check.intervals["backlash"]
+    assert lo <= 0.06 <= hi and check.kept[0].gap == pytest.approx(0.06, rel=0.2)
+    assert "pdr calibrate" in check.hint
+
+
 def test_stand_ins_the_search_calls_an_explanation_are_not_named(tmp_path):
     """A clean recording of an undeclared rig off Table I (stiffer springs, more friction, another motor)
     that forward selection explains with springs, viscous friction and a driver drop: each stands in for
