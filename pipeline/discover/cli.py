@@ -123,8 +123,20 @@ def _discover_many(recordings: list[str], out: Path, json_out: bool, cluster: st
     from pipeline.discover.across import findings
     from pipeline.discover.many import discover_many
 
-    result = discover_many([Path(r) for r in recordings], out, jobs=jobs, cluster=cluster or None, rrd=rrd,
-                           show_progress=sys.stderr.isatty())
+    from pipeline.run.stop import nothing_left_to_stop, stop_signals, stopped_by
+
+    with stop_signals():
+        try:
+            result = discover_many([Path(r) for r in recordings], out, jobs=jobs, cluster=cluster or None, rrd=rrd,
+                                   show_progress=sys.stderr.isatty())
+            nothing_left_to_stop()
+        except BaseException as err:            # typer would turn a stop into a silent exit 130
+            if (stop := stopped_by(err)) is None:
+                raise
+            why = "interrupted" if stop.exit_status == 130 else "terminated (SIGTERM)"
+            typer.echo(f"pdr: {why}: the discoveries finished so far are in {out}/<run>/; the summary "
+                       "across runs was not written (discover them again to have it)", err=True)
+            raise typer.Exit(stop.exit_status) from None
     if json_out:
         doc = {"runs": json.loads(result.table.to_json(orient="records")),
                "pooled": json.loads(result.pooled.to_json(orient="records")),

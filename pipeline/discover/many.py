@@ -115,6 +115,18 @@ def _executor(jobs: int, cluster: str | None) -> tuple[Executor, object | None]:
     return local_pool(jobs), None
 
 
+def _shut_down(executor: Executor, stopping: bool, on_cluster: bool) -> None:
+    """Wait for the recordings under way; on a stop, those not begun are cancelled first (a local worker
+    ignores Ctrl-C, so the one or two it is running end within a recording's time, their outputs unwritten),
+    and a cluster's are cancelled where they run."""
+    if not stopping:
+        executor.shutdown(wait=True)
+    elif on_cluster:
+        executor.shutdown(wait=False)
+    else:
+        executor.shutdown(wait=True, cancel_futures=True)
+
+
 def discover_many(recordings: list[Path], out: Path, *, jobs: int = 2, cluster: str | None = None,
                   rrd: bool = True, show_progress: bool = False) -> ManyResult:
     """Discovery on every recording, its outputs under ``out/<run>/``, then the tables across runs."""
@@ -128,6 +140,7 @@ def discover_many(recordings: list[Path], out: Path, *, jobs: int = 2, cluster: 
     rows = [failed_row(f["recording"], f["run"], None, None, f["error"]) for f in failed]
     executor, client = _executor(jobs, cluster)
     notes = [f"on the dask cluster {cluster}"] if cluster else []
+    stopping = False
     try:
         with Progress(TextColumn("[bold]pdr discover"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                       TextColumn("{task.description}"), disable=not show_progress, transient=False) as bar:
@@ -150,8 +163,11 @@ def discover_many(recordings: list[Path], out: Path, *, jobs: int = 2, cluster: 
                     rows.append(failed_row(job.source, result["run"], mtime, rig, result["error"]))
                 bar.update(task, description=Path(job.source).name)
                 bar.advance(task)
+    except BaseException:       # Ctrl-C or SIGTERM (``pipeline.run.stop``): nothing more is begun
+        stopping = True
+        raise
     finally:
-        executor.shutdown(wait=True)
+        _shut_down(executor, stopping, on_cluster=client is not None)
         if client is not None:
             client.close()
     table = summary_frame(rows)

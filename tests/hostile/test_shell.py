@@ -171,3 +171,37 @@ def test_kill_int_of_a_run_started_in_the_background_by_a_script_is_heard(worksp
     assert proc.stderr.splitlines() == ["pdr: interrupted: the recordings finished so far are kept; pdr run again "
                                         "does the rest"], proc.stderr
     _no_torn_or_temporary_file(processed)
+
+
+@pytest.mark.long
+@pytest.mark.slow
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_a_stop_during_discover_of_many_is_one_line_begins_nothing_more_and_keeps_what_is_finished(tmp_path, sig):
+    """``pdr discover raw/*.csv``: a stop once the first recording is discovered says so in one line,
+    starts none of the recordings still waiting (before, it ran them all, then exited without a word), and
+    leaves every finished one's outputs whole."""
+    raw, out = tmp_path / "raw", tmp_path / "out"
+    raw.mkdir()
+    names = [f"good{seed}" for seed in range(8)]
+    for seed, name in enumerate(names):
+        (raw / f"{name}.csv").write_bytes(good_csv(seed))
+    proc = subprocess.Popen([PDR, "discover", *(str(raw / f"{n}.csv") for n in names), "--out", str(out), "-j", "2",
+                             "--no-rrd"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    deadline = time.monotonic() + 120
+    while not list(out.glob("*/discovery.json")) and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+    family = _descendants(proc.pid)
+    os.killpg(proc.pid, sig)
+    _, err = proc.communicate(timeout=60)
+    status, words = {signal.SIGINT: (130, "interrupted"), signal.SIGTERM: (143, "terminated (SIGTERM)")}[sig]
+    assert proc.returncode == status, err
+    assert err.splitlines() == [f"pdr: {words}: the discoveries finished so far are in {out}/<run>/; the summary "
+                                "across runs was not written (discover them again to have it)"], err
+    assert not _wait_gone(family, within_s=10), "processes left"
+    finished = sorted(p.parent.name for p in out.glob("*/discovery.json"))
+    assert 1 <= len(finished) <= 4, finished              # the two under way at most finished after the stop
+    assert not (out / "summary.csv").exists()
+    for name in finished:
+        assert json.loads((out / name / "discovery.json").read_text())["recording"].endswith(f"{name}.csv")
+    assert not [p for p in out.rglob("*") if p.name.endswith(".tmp")]
