@@ -157,3 +157,12 @@ def a_base_parameter(meas: Measurement, name: str) -> bool:
 
 def _label(base: str, effects: tuple[Effect, ...]) -> str:
     return f"{base} + " + ("+".join(e.name for e in effects) or "nothing")
+
+
+def base_free_text(check: dict) -> str:
+    """One line on what the base-free check kept, dropped and added (``base_free.BaseFreeCheck.to_json``)."""
+    parts = [f"{', '.join(check[key])} {what}" for key, what in
+             (("kept", "held"), ("dropped", "stood in for the base, not named"),
+              ("added", "found only with the base free")) if check.get(key)]
+    return ("the rig's [model] is not declared, so each effect was tested with the base free: "
+            + ("; ".join(parts) if parts else "none held") + ("; the base itself is off" if check.get("base_off") else ""))

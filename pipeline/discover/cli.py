@@ -190,6 +190,12 @@ def _summary(doc: dict) -> str:
         lines.append(f"  near tie: {t['chosen']} vs {t['runner_up']} ({t['scores']})")
     for x in doc.get("unexplained", []):
         lines.append(f"  unexplained: {x}")
+    if check := doc.get("base_free_check"):
+        from pipeline.discover.base_free import base_free_text
+
+        lines.append("  " + base_free_text(check))
+    if doc.get("hint"):
+        lines.append(f"  hint: {doc['hint']}")
     if doc.get("left_out"):
         lines.append(f"  left out: {doc['left_out']}")
     lines.append(f"  {doc['seconds']:.2f} s")

@@ -251,6 +251,13 @@ def markdown(d: Discovery, doc: dict) -> str:
     """The static report for people who do not open the viewer."""
     lines = [f"# Discovery: {d.meas.name}", "", f"Recording: `{doc['recording']}`  ",
              f"Verdict: **{d.verdict}**  ", f"Simulations: {doc['simulations']}", ""]
+    if check := doc.get("base_free_check"):
+        from pipeline.discover.base_free import base_free_text
+
+        lines += ["## The rig's own base model", "", base_free_text(check) + ". The effects below are valued "
+                  "with the base free; the MSEs are against the declared (Table I) base.", ""]
+        if doc.get("hint"):
+            lines += [f"**Hint:** {doc['hint']}", ""]
     if d.effects:
         lines += ["## Effects added (in the order found)", "", "| effect | parameter | value | ~95 % interval | unit |",
                   "|---|---|---|---|---|"]

@@ -55,3 +55,9 @@ def test_stand_ins_the_search_calls_an_explanation_are_not_named(tmp_path):
     assert d.selection.effects                       # the search did find stand-ins ...
     assert doc["effects"] == []                      # ... and the answer names none of them
     assert doc["verdict"] == "unexplained" and "pdr calibrate" in doc["hint"]
+    # ... and says so where a user reads it: the terminal's summary and report.md
+    from pipeline.discover.cli import _summary
+    from pipeline.discover.report import markdown
+
+    for text in (_summary({**doc, "seconds": 1.0}), markdown(d, doc)):
+        assert "pdr calibrate" in text and "stood in for the base" in text, text
