@@ -102,8 +102,10 @@ def discover(
     root = processed if item.suffix.lower() == ".csv" or not item.is_dir() else item.parent
     out_dir = out if out is not None else Path(root) / DISCOVERY_DIR / paths.name
     written, report_md = write_report(out_dir, d, doc, rrd=not no_rrd)
+    # effects found beside a base the TOML does not give would be written beside Table I's: not adopted
+    refused = adopt and bool(d.effects) and d.base_check is not None and d.base_check.base_off
     if adopt:
-        if not d.effects:
+        if not d.effects or refused:
             doc["adopted"] = None
         elif source_csv is None:
             raise PdrError("cannot tell which raw recording this run came from; adopt by hand from "
@@ -115,6 +117,10 @@ def discover(
     typer.echo(dumps(doc) if json_out else _summary(doc) + "\n" + _where(doc, written))
     sys.stdout.flush()
     write_figures(written, d, report_md, rrd=not no_rrd)
+    if refused:
+        raise PdrError("not adopted: the rig's [model] is not declared and the recording does not fit Table I's "
+                       "base, so what was found holds beside a base the TOML does not give; run `pdr calibrate` on "
+                       "two clean recordings of this rig with --adopt, then discover and adopt again", key="--adopt")
 
 
 def _discover_many(recordings: list[str], out: Path, json_out: bool, cluster: str, jobs: int, rrd: bool) -> None:

@@ -1,5 +1,10 @@
 """On a rig whose [model] is not declared, effects that only stand in for the base model are dropped."""
 
+import json
+import subprocess
+import sys
+from pathlib import Path
+
 import pytest
 
 from pipeline.calibrate.load import load_measurements
@@ -7,15 +12,20 @@ from pipeline.discover.base_free import check_with_base_free
 from pipeline.model.effects import CATALOGUE
 from pipeline.rig.other_rigs import OffRig, rigs, write_rig
 
+PDR = str(Path(sys.executable).with_name("pdr"))
 RIG = rigs(seed=20261128, count=3)[2]         # off Table I; its hidden effect is a backlash
 
 
 @pytest.fixture(scope="module")
-def hidden(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("lab")
+def hidden_csv(tmp_path_factory):
     rig = OffRig(index=RIG.index, model=RIG.model, hidden=CATALOGUE["backlash"](gap=0.06))
-    paths = write_rig(rig, tmp / "raw", seed=3, roles=("hidden",), duration_s=15.0)
-    measurements, _, declared = load_measurements([str(paths["hidden"])], tmp / "processed", tmp / "work")
+    return write_rig(rig, tmp_path_factory.mktemp("lab") / "raw", seed=3, roles=("hidden",), duration_s=15.0)["hidden"]
+
+
+@pytest.fixture(scope="module")
+def hidden(hidden_csv):
+    work = hidden_csv.parent.parent
+    measurements, _, declared = load_measurements([str(hidden_csv)], work / "processed", work / "work")
     assert not declared
     return measurements[0]
 
@@ -61,3 +71,18 @@ def test_stand_ins_the_search_calls_an_explanation_are_not_named(tmp_path):
 
     for text in (_summary({**doc, "seconds": 1.0}), markdown(d, doc)):
         assert "pdr calibrate" in text and "stood in for the base" in text, text
+
+
+def test_what_was_found_beside_an_off_base_is_not_adopted(hidden_csv, tmp_path):
+    """``--adopt`` would write effects valued beside a free base into a TOML whose base is Table I's: it
+    answers, draws its report, writes nothing into the TOML and exits 2 saying to calibrate first."""
+    sidecar = hidden_csv.with_suffix(".toml")
+    before = sidecar.read_bytes()
+    res = subprocess.run([PDR, "discover", str(hidden_csv), "--adopt", "--json", "--no-rrd", "--out", str(tmp_path)],
+                         capture_output=True, text=True, cwd=hidden_csv.parent.parent)
+    assert res.returncode == 2, res.stderr
+    doc = json.loads(res.stdout)
+    assert [e["name"] for e in doc["effects"]] == ["backlash"] and doc["adopted"] is None
+    assert res.stderr.startswith("pdr: error: ") and "not adopted" in res.stderr and "pdr calibrate" in res.stderr
+    assert sidecar.read_bytes() == before
+    assert (tmp_path / "signals.png").is_file()           # the report was still drawn
