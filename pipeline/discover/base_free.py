@@ -22,7 +22,7 @@ and asks for a calibration.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -30,13 +30,12 @@ from pipeline.calibrate.structure import base_unknowns
 from pipeline.discover.measurement import Measurement
 from pipeline.discover.policy import DEFAULT_POLICY, DiscoveryPolicy
 from pipeline.discover.residuals import noise_floor, target_of
-from pipeline.discover.search import beyond_zero_error, nameable
+from pipeline.discover.search import beyond_zero_error, nameable, what_it_changes
 from pipeline.estimate import FitResult, Model, Problem, effect_unknowns
 from pipeline.model.effects import CATALOGUE, Effect
 
 HINT = ("the rig's [model] is not declared and the recording does not fit Table I's base model: run "
         "`pdr calibrate` on two clean recordings of this rig (with --adopt), then discover again")
-MAX_EFFECTS = 3      # as the search's ``policy.max_effects``
 MAX_NFEV = 60        # per fit: the base free from Table I converges in a few dozen evaluations
 
 
@@ -120,7 +119,7 @@ def check_with_base_free(meas: Measurement, effects: tuple[Effect, ...], names: 
     kept, current = eliminate(_effects_at(full, effects), full)
     base_off, fixed = base_is_off(kept, current)
     added: list[str] = []
-    while base_off and len(kept) < MAX_EFFECTS:
+    while base_off and len(kept) < policy.max_effects:
         others = [n for n in names if n not in {e.name for e in kept} and not a_base_parameter(meas, n)]
         trials = [(fit(trial, current), trial) for trial in ((*kept, CATALOGUE[n].typical()) for n in others)]
         # as in the search: the one that gains most of those that clear their charge at a nameable size
@@ -150,9 +149,7 @@ def a_base_parameter(meas: Measurement, name: str) -> bool:
     """Whether the effect changes nothing in the plant but its base parameters (viscous friction is b,
     a rack's inertia J, the springs' scale K): with the base free it is the base under another name,
     and all it could gain is an escape from the base's prior."""
-    base = meas.spec()
-    spec = meas.spec((CATALOGUE[name].typical(),))
-    return [f.name for f in fields(base) if getattr(base, f.name) != getattr(spec, f.name)] == ["params"]
+    return what_it_changes(meas, name) == ["params"]
 
 
 def _label(base: str, effects: tuple[Effect, ...]) -> str:

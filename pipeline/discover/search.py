@@ -213,12 +213,17 @@ def heldout_nll(ev: Evaluator, effects: tuple[Effect, ...], folds, taus: dict[st
 
 # ------------------------------------------------------------------ the search
 
+def what_it_changes(meas: Measurement, name: str) -> list[str]:
+    """The fields of the recording's plant (``PlantSpec``) the effect moves, at its typical size."""
+    base = meas.spec()
+    spec = meas.spec((CATALOGUE[name].at(CATALOGUE[name].PARAMS[0].typical),))
+    return [f.name for f in fields(base) if getattr(base, f.name) != getattr(spec, f.name)]
+
+
 def only_a_constant_torque(meas: Measurement, name: str) -> bool:
     """Whether the effect changes nothing in the plant but its constant external torque: after a board
     reset that only moves where the springs rest in the counter's unknown zero, so it is not a candidate."""
-    base = meas.spec()
-    spec = meas.spec((CATALOGUE[name].at(CATALOGUE[name].PARAMS[0].typical),))
-    return [f.name for f in fields(base) if getattr(base, f.name) != getattr(spec, f.name)] == ["torque"]
+    return what_it_changes(meas, name) == ["torque"]
 
 
 def candidate_names(meas: Measurement, names: tuple[str, ...] | None = None) -> tuple[str, ...]:
