@@ -300,7 +300,8 @@ def markdown(d: Discovery, doc: dict) -> str:
                      f"[{_fmt(lo)}, {_fmt(hi)}] | {_fmt(c.get('charge', float('nan')))} | {result} |")
     lines += ["", "Held-out evidence: the negative log-likelihood the candidate removes on cycles it was not fitted "
               "on, in independent samples; an effect is adopted when it exceeds its charge (per parameter), removes "
-              "at least half of some signal's held-out structure, and is of a nameable size.", "",
+              f"at least {d.selection.policy.min_heldout_share:.0%} of some signal's held-out structure, and is of a "
+              "nameable size.", "",
               f"![signals]({FILES['signals_png']})", "", f"![residuals]({FILES['residuals_png']})", "",
               f"![candidates]({FILES['candidates_png']})", ""]
     return "\n".join(lines)

@@ -61,7 +61,7 @@ class Candidate:
     charge: float            # what its parameters cost: ``evidence_per_parameter`` each
     share: float             # the largest share of a signal's held-out structure it removes
     accepted: bool = False   # adopted in this round
-    min_share: float = 0.5   # ``policy.min_heldout_share``
+    min_share: float = DEFAULT_POLICY.min_heldout_share
     nameable: bool = True    # of a nameable size, clear of a zero's error
 
     @property
