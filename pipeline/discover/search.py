@@ -220,16 +220,12 @@ def what_it_changes(meas: Measurement, name: str) -> list[str]:
     return [f.name for f in fields(base) if getattr(base, f.name) != getattr(spec, f.name)]
 
 
-def only_a_constant_torque(meas: Measurement, name: str) -> bool:
-    """Whether the effect changes nothing in the plant but its constant external torque: after a board
-    reset that only moves where the springs rest in the counter's unknown zero, so it is not a candidate."""
-    return what_it_changes(meas, name) == ["torque"]
-
-
 def candidate_names(meas: Measurement, names: tuple[str, ...] | None = None) -> tuple[str, ...]:
-    """The catalogue (or ``names``) less what the recording cannot tell (``only_a_constant_torque``)."""
+    """The catalogue (or ``names``) less what the recording cannot tell: after a board reset, an effect that
+    changes nothing in the plant but its constant torque only moves where the springs rest in the
+    counter's unknown zero."""
     names = tuple(CATALOGUE) if names is None else names
-    return names if meas.angle_reference_known else tuple(n for n in names if not only_a_constant_torque(meas, n))
+    return names if meas.angle_reference_known else tuple(n for n in names if what_it_changes(meas, n) != ["torque"])
 
 
 def excess(ev: Evaluator, effects: tuple[Effect, ...]) -> dict[str, float]:
