@@ -177,6 +177,8 @@ def _where(doc: dict, written: dict[str, Path]) -> str:
     lines = [f"report: {written['markdown']} (its figures are drawn next)"]
     if doc.get("adopted"):
         lines.append(f"adopted into {doc['adopted']}")
+    elif doc["effects"] and (doc.get("base_free_check") or {}).get("base_off"):
+        lines.append(f"[effects] snippet: {written['toml']} (--adopt writes nothing until the rig is calibrated)")
     elif doc["effects"]:
         lines.append(f"[effects] snippet: {written['toml']} (add --adopt to write it into the rig's TOML)")
     return "\n".join(lines)

@@ -86,3 +86,6 @@ def test_what_was_found_beside_an_off_base_is_not_adopted(hidden_csv, tmp_path):
     assert res.stderr.startswith("pdr: error: ") and "not adopted" in res.stderr and "pdr calibrate" in res.stderr
     assert sidecar.read_bytes() == before
     assert (tmp_path / "signals.png").is_file()           # the report was still drawn
+    plain = subprocess.run([PDR, "discover", str(hidden_csv), "--no-rrd", "--out", str(tmp_path / "plain")],
+                           capture_output=True, text=True, cwd=hidden_csv.parent.parent)
+    assert plain.returncode == 0 and "--adopt writes nothing until the rig is calibrated" in plain.stdout, plain.stdout
