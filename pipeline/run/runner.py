@@ -19,6 +19,7 @@ status is non-zero.  Two ``pdr run`` on one folder run one after the other
 from __future__ import annotations
 
 import importlib
+import multiprocessing
 import os
 import shutil
 import tempfile
@@ -79,7 +80,7 @@ def _stop_workers(pool, processed: Path, spawned: threading.Event) -> None:
     The first worker may still be starting (the forkserver imports for ~2 s first): it is waited
     for, or it would read the pool's queues after this process has removed them."""
     spawned.wait(timeout=60)
-    for proc in list((pool._processes or {}).values()):     # the executor keeps no public handle on them
+    for proc in multiprocessing.active_children():      # this process starts no others than the pool's
         proc.terminate()
     pool.shutdown(wait=True, cancel_futures=True)
     for folder in (processed, *(p for p in processed.iterdir() if p.is_dir())):
