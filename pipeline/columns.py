@@ -1,9 +1,9 @@
-"""A DataFrame's column as a numpy array, without building a pandas Series.
+"""A DataFrame's column as a read-only numpy array, or as pandas stores it.
 
-``df[name].to_numpy()`` costs ~50 us a column in pandas 3 (a Series and its
-copy-on-write bookkeeping); pandas' own storage is ~2 us away.  One recording
-reads a few hundred columns across the stages, so the Series nobody needed
-cost more than some stages' work.
+One place for how the stages read a column: numpy columns as read-only views (no stage writes
+into a table it was given), extension columns (nullable, Arrow-backed strings) the public way.
+Through pandas' public API only: its internal column access saved ~5 ms of CPU a recording
+(~5 % of ``pdr run``'s, docs/PERFORMANCE.md) at the price of depending on a private method.
 """
 
 from __future__ import annotations
@@ -17,8 +17,9 @@ import pandas as pd
 def stored(df: pd.DataFrame, name: str):
     """The column as pandas stores it: a numpy array (read it, never write it) or an extension array
     (nullable, Arrow-backed strings), which ``pyarrow.array`` takes without a detour through Python objects."""
-    where = df.columns.get_loc(name)
-    return df._get_column_array(where) if isinstance(where, int) else df[name].to_numpy()
+    values = df[name]
+    return values.array if isinstance(values, pd.Series) and not isinstance(values.dtype, np.dtype) \
+        else values.to_numpy()
 
 
 def column(df: pd.DataFrame, name: str, dtype: Any = None, na_value: Any = None) -> np.ndarray:
@@ -28,9 +29,9 @@ def column(df: pd.DataFrame, name: str, dtype: Any = None, na_value: Any = None)
     converted to ``dtype``; a float block's NaN stays NaN, so ``na_value``
     only matters for the extension arrays, which take the public way).
     """
-    where = df.columns.get_loc(name)
-    values = df._get_column_array(where) if isinstance(where, int) else None   # None: a duplicated name
-    if not isinstance(values, np.ndarray):
+    series = df[name]
+    values = series.to_numpy() if isinstance(series, pd.Series) and isinstance(series.dtype, np.dtype) else None
+    if values is None:                      # an extension column, or a duplicated name
         kwargs = {} if na_value is None else {"na_value": na_value}
         return df[name].to_numpy(dtype=dtype, **kwargs)
     if dtype is not None and values.dtype != np.dtype(dtype):
