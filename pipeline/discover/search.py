@@ -19,11 +19,12 @@ error of a zero read off rest readings (a nuisance with a known variance).
 The search.  Round by round every remaining candidate is tried on top of the model found so far
 (all parameters of all effects refitted jointly); of those that clear every check, the one that
 removes the most held-out likelihood is adopted.  A round is not run where even an effect that left
-only noise could not clear a charge (``room``).  Where the rounds leave structure, round one's other
-candidates are further starts: the rounds run from each, and the model with the best criterion
-(held-out likelihood less charges, one set of autocorrelation times for all) is kept, because the
-first pick among near-twins (a softer spring and a heavier rack both slow the oscillation) is made
-before the partners are known.  Then each effect the others made redundant (its gain, with them
+only noise could not clear a charge (``room``).  Where the rounds leave more than the clock's tick
+leaves (``policy.starts_above`` noise variances), round one's other candidates are further starts:
+the rounds run from each, and the model with the best criterion (held-out likelihood less charges,
+one set of autocorrelation times for all) is kept, because the first pick among near-twins (a softer
+spring and a heavier rack both slow the oscillation; viscous friction for a delay and a driver drop
+together) is made before the partners are known.  Then each effect the others made redundant (its gain, with them
 refitted, no longer clears its charge) is dropped; after a board reset the counter's zero, a nuisance held
 from the base model's fit through the rounds, is first estimated again under the model found
 (``start_refit.hold_offset_of``), so the elimination and the verdict judge every model at one offset.
@@ -327,9 +328,9 @@ def _search(meas: Measurement, names: tuple[str, ...], policy: DiscoveryPolicy, 
     plain = _forward(ev, names, folds, policy, None, [])
     runs = [plain]
     first = plain.rounds[0] if plain.rounds else []
-    # other starts only where the plain run leaves structure (a wrong twin first leaves its partner's pattern);
-    # after a reset every trial fits a counter zero too: one run only
-    if meas.angle_reference_known and max(excess(ev, plain.effects).values()) > policy.structure_floors:
+    # other starts where the plain run leaves more than the clock does (a wrong twin first leaves its partner's
+    # pattern); after a reset every trial fits a counter zero too: one run only
+    if meas.angle_reference_known and max(excess(ev, plain.effects).values()) > policy.starts_above:
         # round one's others that clear every check; where none does, those that fail only the evidence (the
         # held-out likelihood of a start is judged on the model it leads to: partners can be needed together)
         others = [c for c in first if isinstance(c, Candidate) and not c.accepted
@@ -339,6 +340,9 @@ def _search(meas: Measurement, names: tuple[str, ...], policy: DiscoveryPolicy, 
             if ev.work > policy.total_work_budget:
                 break
             runs.append(_forward(ev, names, folds, policy, c, first))
+        # a further start counts where each sensor zero it names is readable (below), or the best would be cut down
+        runs = [plain, *(r for r in runs[1:]
+                         if not any(_zero_beside_structure(e, excess(ev, r.effects), policy) for e in r.effects))]
     # one likelihood for every model compared: the residual correlation the plain run leaves
     taus = residual_taus(ev, plain.effects)
     best = plain if len(runs) == 1 else min(runs, key=lambda r: heldout_nll(ev, r.effects, folds, taus)
