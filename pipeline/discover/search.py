@@ -96,8 +96,7 @@ class Candidate:
 
 @dataclass
 class Screened:
-    """A candidate not fitted this round: its coarse scan gained nothing, or ranked it below the
-    ``later_full_fits`` fitted in a later round."""
+    """A candidate not fitted this round: its scan gained nothing, or ranked below ``later_full_fits``."""
 
     name: str
     round: int
