@@ -2,8 +2,8 @@
 
 One place for how the stages read a column: numpy columns as read-only views (no stage writes
 into a table it was given), extension columns (nullable, Arrow-backed strings) the public way.
-Through pandas' public API only: its internal column access saved ~5 ms of CPU a recording
-(~5 % of ``pdr run``'s, docs/PERFORMANCE.md) at the price of depending on a private method.
+Through pandas' public API only: its internal column access would save ~4 ms of a recording's
+~85 ms of CPU in ``pdr run`` (docs/PERFORMANCE.md), at the price of depending on a private method.
 """
 
 from __future__ import annotations

@@ -16,17 +16,17 @@ pattern stays is absorbing the misfit of something outside the catalogue), be of
 (``min_size_share`` of its catalogue's typical size), and, a sensor's offset, stand clear of the
 error of a zero read off rest readings (a nuisance with a known variance).
 
-The search.  Round by round every remaining candidate is tried on top of the model found so far
-(all parameters of all effects refitted jointly); of those that clear every check, the one that
-removes the most held-out likelihood is adopted.  A round is not run where even an effect that left
-only noise could not clear a charge (``room``).  Where the rounds leave more than the clock's tick
-leaves (``policy.starts_above`` noise variances), round one's other candidates are further starts:
-the rounds run from each, and the model with the best criterion (held-out likelihood less charges,
-one set of autocorrelation times for all) is kept, because the first pick among near-twins (a softer
-spring and a heavier rack both slow the oscillation; viscous friction for a delay and a driver drop
-together) is made before the partners are known.  Then each effect the others made redundant (its gain, with them
-refitted, no longer clears its charge) is dropped; after a board reset the counter's zero, a nuisance held
-from the base model's fit through the rounds, is first estimated again under the model found
+The search.  Round by round every remaining candidate is tried on top of the model found so far (all
+parameters of all effects refitted jointly); of those that clear every check, the one that removes the
+most held-out likelihood is adopted.  A round is not run where even an effect that left only noise could
+not clear a charge (``room``).  Where the rounds leave more than the clock's tick leaves
+(``policy.starts_above`` noise variances), round one's other candidates are further starts: the rounds
+run from each, and the model with the best criterion (held-out likelihood less charges, one set of
+autocorrelation times for all) is kept, because the first pick among near-twins (a softer spring and a
+heavier rack both slow the oscillation; viscous friction for a delay and a driver drop together) is made
+before the partners are known.  Then each effect the others made redundant (its gain, with them
+refitted, no longer clears its charge) is dropped; after a board reset the counter's zero, a nuisance
+held from the base model's fit through the rounds, is first estimated again under the model found
 (``start_refit.hold_offset_of``), so the elimination and the verdict judge every model at one offset.
 
 The verdict.  ``none`` when nothing is adopted and the recording is at its noise floor;
