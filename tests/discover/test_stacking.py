@@ -26,20 +26,27 @@ def test_a_sensor_offset_of_about_one_noise_sigma_beside_a_loop_delay_is_named(t
     assert abs(found["current_sensor_offset"] + 0.12) <= 0.2 * 0.12
 
 
-def _randomised(index: int, work, seed: int = 15) -> tuple:
-    """Draw ``index`` of the randomised rig (``make bench-discovery --seed``, 15 by default): its longest
-    run's kinematics, resolved config and what is hidden in it, through ingest and derive."""
+def _ingested_draw(index: int, work, seed: int) -> tuple:
+    """Draw ``index`` of the randomised rig (``make bench-discovery --seed``) written, ingested and derived:
+    (what is hidden, the runs of its capture)."""
     from pipeline.derive.stage import derive_run
     from pipeline.ingest.stage import ingest_recording
     from pipeline.rig.randomised import randomised_setup
     from pipeline.rig.recording import make_recording, write_recording
-    from pipeline.runs import load_config
 
     draw = randomised_setup(np.random.default_rng([seed, index]))
     write_recording(make_recording(draw.setup), work / "raw", "rec")
     runs = ingest_recording(work / "raw" / "rec.csv", work / "processed").runs
     for paths in runs:
         derive_run(paths)
+    return draw, runs
+
+
+def _randomised(index: int, work, seed: int = 15) -> tuple:
+    """Draw ``index`` (seed 15 by default): its longest run's kinematics, resolved config and what is hidden in it."""
+    from pipeline.runs import load_config
+
+    draw, runs = _ingested_draw(index, work, seed)
     kins = [pd.read_parquet(p.kinematics) for p in runs]
     longest = max(range(len(runs)), key=lambda i: len(kins[i]))
     return kins[longest], load_config(runs[longest]), draw
@@ -113,17 +120,9 @@ def test_a_backlash_that_springs_and_a_delay_leave_under_the_verdicts_line_is_na
     springs.  The delay and the springs alone leave 20 noise variances in the angle, under the verdict's
     line (25) but far above what the clock leaves (~3): the runs from round one's other candidates find
     the backlash too."""
-    from pipeline.derive.stage import derive_run
     from pipeline.discover.stage import discover_run, segment_to_discover
-    from pipeline.ingest.stage import ingest_recording
-    from pipeline.rig.randomised import randomised_setup
-    from pipeline.rig.recording import make_recording, write_recording
 
-    draw = randomised_setup(np.random.default_rng([791919628, 71]))
-    write_recording(make_recording(draw.setup), tmp_path / "raw", "rec")
-    runs = ingest_recording(tmp_path / "raw" / "rec.csv", tmp_path / "processed").runs
-    for paths in runs:
-        derive_run(paths)
+    draw, runs = _ingested_draw(71, tmp_path, seed=791919628)
     _, doc = discover_run(segment_to_discover(runs))
     truth = {e.name: e.parameters for e in draw.effects}
     found = {e["name"]: e for e in doc["effects"]}
