@@ -25,7 +25,9 @@ run from each, and the model with the best criterion (held-out likelihood less c
 autocorrelation times for all) is kept, because the first pick among near-twins (a softer spring and a
 heavier rack both slow the oscillation; viscous friction for a delay and a driver drop together) is made
 before the partners are known.  Then each effect the others made redundant (its gain, with them
-refitted, no longer clears its charge) is dropped; after a board reset the counter's zero, a nuisance
+refitted, no longer clears its charge) is dropped, and where one was, the rounds run again from what is
+left (stepwise selection, each step kept only where the criterion improves): the room a stand-in held
+goes to what it stood in for.  After a board reset the counter's zero, a nuisance
 held from the base model's fit through the rounds, is first estimated again under the model found
 (``start_refit.hold_offset_of``), so the elimination and the verdict judge every model at one offset.
 
@@ -275,8 +277,8 @@ def _round(ev: Evaluator, effects: tuple[Effect, ...], remaining: list[str], fol
 
 
 def _forward(ev: Evaluator, names: tuple[str, ...], folds, policy: DiscoveryPolicy,
-             start: Candidate | None, first_round: list[Candidate]) -> _Run:
-    effects: tuple[Effect, ...] = ()
+             start: Candidate | None, first_round: list[Candidate], effects: tuple[Effect, ...] = ()) -> _Run:
+    """Forward selection from ``effects``, or from ``start`` adopted out of round one's ``first_round``."""
     rounds: list[list[Candidate]] = []
     if start is not None:
         effects = start.fit.effects
@@ -313,6 +315,33 @@ def _prune(ev: Evaluator, effects: tuple[Effect, ...], folds, policy: DiscoveryP
     return effects
 
 
+def _stepwise(ev: Evaluator, names: tuple[str, ...], folds, policy: DiscoveryPolicy, taus: dict[str, float],
+              run: _Run) -> tuple[tuple[Effect, ...], list[list[Candidate]]]:
+    """Stepwise selection: backward elimination, and, where it dropped an effect, forward selection again
+    from what is left, until neither changes the model.  A stand-in adopted early and dropped once its
+    partners are in leaves room for the effect it stood in for.  A step is kept only where the criterion
+    (held-out nll + charges, under the residual correlation ``taus``) improves, and no model twice."""
+    def score(effects: tuple[Effect, ...]) -> float:
+        return heldout_nll(ev, effects, folds, taus) + sum(charge(e.name, policy) for e in effects)
+
+    def key(effects: tuple[Effect, ...]) -> frozenset[str]:
+        return frozenset(e.name for e in effects)
+
+    effects, rounds = _prune(ev, run.effects, folds, policy, taus), list(run.rounds)
+    dropped, seen = len(effects) < len(run.effects), {key(run.effects), key(effects)}
+    while dropped and ev.work <= policy.work_budget:
+        again = _forward(ev, names, folds, policy, None, [], effects)
+        grown = _prune(ev, again.effects, folds, policy, taus)
+        if key(grown) in seen or score(grown) >= score(effects):
+            break
+        seen.add(key(grown))
+        dropped = len(grown) < len(again.effects)
+        # the rounds numbered on from the run's, in the order they ran
+        rounds += [[replace(c, round=len(rounds) + 1) for c in rnd] for rnd in again.rounds]
+        effects = grown
+    return effects, rounds
+
+
 def _zero_beside_structure(effect: Effect, ex_after: dict[str, float], policy: DiscoveryPolicy) -> bool:
     signal = effect.PARAMS[0].zero_of
     return bool(signal) and any(x > policy.structure_floors for s, x in ex_after.items() if s != signal)
@@ -346,9 +375,10 @@ def _search(meas: Measurement, names: tuple[str, ...], policy: DiscoveryPolicy, 
     taus = residual_taus(ev, plain.effects)
     best = plain if len(runs) == 1 else min(runs, key=lambda r: heldout_nll(ev, r.effects, folds, taus)
                                             + sum(charge(e.name, policy) for e in r.effects))
-    adopted = {e.name for r in runs for e in r.effects}
     hold_offset_of(ev, best.effects)
-    effects = _prune(ev, best.effects, folds, policy, taus)
+    effects, rounds = _stepwise(ev, names, folds, policy, taus, best)
+    adopted = {e.name for r in runs for e in r.effects} | {c.fit.name for rnd in rounds for c in rnd
+                                                           if getattr(c, "accepted", False)}
     refine_start(ev, effects)
     ex_after = excess(ev, effects)
     if unreadable := [e for e in effects if _zero_beside_structure(e, ex_after, policy)]:
@@ -358,8 +388,8 @@ def _search(meas: Measurement, names: tuple[str, ...], policy: DiscoveryPolicy, 
     structured = max(ex_after.values()) > policy.structure_floors
     verdict = "unexplained" if structured else "explained" if effects else "none"
     spans = effect_intervals(held_start_sensitivity(ev, effects), effects) if effects else []
-    return Selection(effects=effects, verdict=verdict, rounds=best.rounds, floor=floor,
-                     excess_before=excess(ev, ()), excess_after=ex_after, near_tie=_near_tie(best.rounds, policy),
+    return Selection(effects=effects, verdict=verdict, rounds=rounds, floor=floor,
+                     excess_before=excess(ev, ()), excess_after=ex_after, near_tie=_near_tie(rounds, policy),
                      simulations=ev.simulations, failures=ev.failures, command_before=ev.command_for(()),
                      command_after=ev.command_for(effects), stopped_for_time=ev.work > policy.work_budget,
                      work=ev.work, pruned=sorted(adopted - {e.name for e in effects}), intervals=spans,

@@ -120,13 +120,27 @@ def test_a_backlash_that_springs_and_a_delay_leave_under_the_verdicts_line_is_na
     springs.  The delay and the springs alone leave 20 noise variances in the angle, under the verdict's
     line (25) but far above what the clock leaves (~3): the runs from round one's other candidates find
     the backlash too."""
+    _assert_named_as_pdr_discover_reads_it(791919628, 71, {"loop_delay", "backlash", "spring_stiffness"}, tmp_path)
+
+
+def test_a_sensor_offset_left_out_for_a_stand_in_is_named_once_the_stand_in_is_dropped(tmp_path):
+    """Randomised draw 238 of seed 666961679: a loop delay, a current sensor's offset and springs.  Round
+    one adopts a driver drop, which the delay and the springs then make redundant; with three effects in,
+    no round had room for the offset.  Dropped, the drop leaves that room, and the offset is named."""
+    _assert_named_as_pdr_discover_reads_it(666961679, 238, {"loop_delay", "current_sensor_offset",
+                                                            "spring_stiffness"}, tmp_path)
+
+
+def _assert_named_as_pdr_discover_reads_it(seed: int, index: int, names: set[str], work) -> None:
+    """The draw as ``pdr discover`` reads it: every hidden effect named (``names``), none else, the verdict
+    ``explained``, and each value within 5 % of the truth and inside its interval."""
     from pipeline.discover.stage import discover_run, segment_to_discover
 
-    draw, runs = _ingested_draw(71, tmp_path, seed=791919628)
+    draw, runs = _ingested_draw(index, work, seed=seed)
     _, doc = discover_run(segment_to_discover(runs))
     truth = {e.name: e.parameters for e in draw.effects}
     found = {e["name"]: e for e in doc["effects"]}
-    assert set(found) == set(truth) == {"loop_delay", "backlash", "spring_stiffness"}
+    assert set(found) == set(truth) == names
     assert doc["verdict"] == "explained"
     for name, params in truth.items():
         (p, v), = params.items()
