@@ -414,17 +414,20 @@ def select(meas: Measurement, names: tuple[str, ...] | None = None,
            policy: DiscoveryPolicy = DEFAULT_POLICY) -> Selection:
     """Discovery on one recording (replay fits; the closed loop is confirmed by the caller).
 
-    Inferred switches a sample apart are nuisances: settled by the base model first, and, when
-    that leaves structure and effects were found, again by the model with them (the run that
-    leaves less structure is kept)."""
+    Inferred switches a sample apart are nuisances, settled with the model: by the base model first,
+    then, while what is found leaves structure, by the model found, and searched again, until the
+    switches no longer move (the run that leaves least structure is kept)."""
     names = candidate_names(meas, names)
     if not ambiguous_switches(meas):
         return _search(meas, names, policy)
-    first = _search(settled(meas, ()), names, policy)
-    if first.verdict != "unexplained" or not first.effects:
-        return first
-    again = settled(meas, first.effects)
-    if np.array_equal(again.dir, first.meas.dir) or first.work > policy.total_work_budget:
-        return first
-    second = _search(again, names, policy, spent=first.work)
-    return second if max(second.excess_after.values()) < max(first.excess_after.values()) else first
+    best = last = _search(settled(meas, ()), names, policy)
+    seen = {best.meas.dir.tobytes()}
+    while last.verdict == "unexplained" and last.effects and last.work <= policy.total_work_budget:
+        again = settled(meas, last.effects)
+        if again.dir.tobytes() in seen:
+            break
+        seen.add(again.dir.tobytes())
+        last = _search(again, names, policy, spent=last.work)
+        if max(last.excess_after.values()) < max(best.excess_after.values()):
+            best = last
+    return best

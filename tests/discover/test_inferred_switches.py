@@ -38,3 +38,22 @@ def test_the_hidden_effects_are_named_within_a_fifth(discovered):
     for e in draw.effects:
         for p, v in e.parameters.items():
             assert found[e.name][p] == pytest.approx(v, rel=0.2), (e.name, p)
+
+
+@pytest.mark.slow
+@pytest.mark.long
+def test_switches_settled_again_under_each_model_found_until_none_moves(tmp_path):
+    """A randomised draw without its command: a backlash, a constant torque and viscous friction.  The
+    base model settles three switches on a guard the wrong way, and the first search finds the torque
+    and the friction; settled by them, the search finds all three but still leaves structure; settled
+    by all three, every switch is right and the answer is ``explained``."""
+    draw = randomised_setup(np.random.default_rng([2086065210, 92]))
+    write_recording(make_recording(draw.setup), tmp_path / "raw", "r")
+    _, doc = discover_run(ingest_and_derive(tmp_path / "raw" / "r.csv", tmp_path / "processed")[0])
+    assert not draw.conventions["dir"]
+    assert doc["verdict"] == "explained"
+    found = {e["name"]: e["parameters"] for e in doc["effects"]}
+    assert set(found) == {e.name for e in draw.effects}
+    for e in draw.effects:
+        for p, v in e.parameters.items():
+            assert found[e.name][p] == pytest.approx(v, rel=0.2), (e.name, p)
