@@ -315,15 +315,19 @@ def _prune(ev: Evaluator, effects: tuple[Effect, ...], folds, policy: DiscoveryP
     return effects
 
 
+def _criterion(ev: Evaluator, effects: tuple[Effect, ...], folds, taus: dict[str, float],
+               policy: DiscoveryPolicy) -> float:
+    """What every model compared is judged by: its held-out nll (in independent samples under ``taus``)
+    plus the charges of its effects' parameters.  Lower is better."""
+    return heldout_nll(ev, effects, folds, taus) + sum(charge(e.name, policy) for e in effects)
+
+
 def _stepwise(ev: Evaluator, names: tuple[str, ...], folds, policy: DiscoveryPolicy, taus: dict[str, float],
               run: _Run) -> tuple[tuple[Effect, ...], list[list[Candidate]]]:
     """Stepwise selection: backward elimination, and, where it dropped an effect, forward selection again
     from what is left, until neither changes the model.  A stand-in adopted early and dropped once its
     partners are in leaves room for the effect it stood in for.  A step is kept only where the criterion
     (held-out nll + charges, under the residual correlation ``taus``) improves, and no model twice."""
-    def score(effects: tuple[Effect, ...]) -> float:
-        return heldout_nll(ev, effects, folds, taus) + sum(charge(e.name, policy) for e in effects)
-
     def key(effects: tuple[Effect, ...]) -> frozenset[str]:
         return frozenset(e.name for e in effects)
 
@@ -332,12 +336,13 @@ def _stepwise(ev: Evaluator, names: tuple[str, ...], folds, policy: DiscoveryPol
     while dropped and ev.work <= policy.work_budget:
         again = _forward(ev, names, folds, policy, None, [], effects)
         grown = _prune(ev, again.effects, folds, policy, taus)
-        if key(grown) in seen or score(grown) >= score(effects):
+        if key(grown) in seen or (_criterion(ev, grown, folds, taus, policy)
+                                  >= _criterion(ev, effects, folds, taus, policy)):
             break
         seen.add(key(grown))
         dropped = len(grown) < len(again.effects)
         # the rounds numbered on from the run's, in the order they ran
-        rounds += [[replace(c, round=len(rounds) + 1) for c in rnd] for rnd in again.rounds]
+        rounds += [[replace(c, round=len(rounds) + 1 + i) for c in rnd] for i, rnd in enumerate(again.rounds)]
         effects = grown
     return effects, rounds
 
@@ -373,8 +378,7 @@ def _search(meas: Measurement, names: tuple[str, ...], policy: DiscoveryPolicy, 
                          if not any(_zero_beside_structure(e, excess(ev, r.effects), policy) for e in r.effects))]
     # one likelihood for every model compared: the residual correlation the plain run leaves
     taus = residual_taus(ev, plain.effects)
-    best = plain if len(runs) == 1 else min(runs, key=lambda r: heldout_nll(ev, r.effects, folds, taus)
-                                            + sum(charge(e.name, policy) for e in r.effects))
+    best = plain if len(runs) == 1 else min(runs, key=lambda r: _criterion(ev, r.effects, folds, taus, policy))
     hold_offset_of(ev, best.effects)
     effects, rounds = _stepwise(ev, names, folds, policy, taus, best)
     adopted = {e.name for r in runs for e in r.effects} | {c.fit.name for rnd in rounds for c in rnd

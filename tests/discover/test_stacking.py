@@ -146,3 +146,7 @@ def _assert_named_as_pdr_discover_reads_it(seed: int, index: int, names: set[str
         (p, v), = params.items()
         lo, hi = found[name]["interval"][p]
         assert abs(found[name]["parameters"][p] - v) <= 0.05 * abs(v) and lo <= v <= hi, name
+    # the report's rounds in the order they ran, each adopting at most one candidate
+    rounds = [c["round"] for c in doc["candidates"]]
+    assert rounds == sorted(rounds)
+    assert all(sum(c["accepted"] for c in doc["candidates"] if c["round"] == r) <= 1 for r in set(rounds))
