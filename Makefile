@@ -61,7 +61,7 @@ bench-calibration: bytecode
 bench-discovery-shipped: bytecode
 	$(PY) -m benchmarks.discovery_matrix --shipped
 
-# Mutation testing of derive/, validate/ and discover/search.py (pyproject [tool.mutmut]); not part of
+# Mutation testing of derive/, validate/, discover/search.py and criterion.py (pyproject [tool.mutmut]); not part of
 # `make test`: hours on two cores.  MUTANTS narrows it, e.g. make mutation MUTANTS='pipeline.derive.energy*'.
 # Results: mutants/ (`.venv/bin/mutmut results`, `mutmut show NAME`); the last score is in docs/MUTATION.md.
 MUTANTS ?=

@@ -30,7 +30,8 @@ from pipeline.calibrate.structure import base_unknowns
 from pipeline.discover.measurement import Measurement
 from pipeline.discover.policy import DEFAULT_POLICY, DiscoveryPolicy
 from pipeline.discover.residuals import noise_floor, target_of
-from pipeline.discover.search import beyond_zero_error, nameable, what_it_changes
+from pipeline.discover.criterion import beyond_zero_error, nameable
+from pipeline.discover.search import what_it_changes
 from pipeline.estimate import FitResult, Model, Problem, effect_unknowns
 from pipeline.model.effects import CATALOGUE, Effect
 

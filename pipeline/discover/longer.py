@@ -23,7 +23,8 @@ from pipeline.discover.candidates import Evaluator
 from pipeline.discover.joint import effect_intervals, joint_fit
 from pipeline.discover.measurement import MAX_SAMPLES, measurement_from_kinematics
 from pipeline.discover.residuals import noise_floor
-from pipeline.discover.search import Selection, excess, nameable
+from pipeline.discover.criterion import nameable
+from pipeline.discover.search import Selection, excess
 from pipeline.discover.start_refit import held_start_sensitivity, refine_start
 
 REFIT_SAMPLES = 2 * MAX_SAMPLES

@@ -1,20 +1,6 @@
 """Forward selection over the catalogue by one criterion: held-out likelihood.
 
-The criterion.  A model (the rig's base plus a set of effects) is scored by its cross-validated
-likelihood: its parameters are fitted on half the cycles and it predicts the other half, both
-ways (``candidates.folds_by_cycle``).  The gain of adding an effect is the held-out negative
-log-likelihood it removes, per signal divided by the autocorrelation time of that signal's
-residual (the clock's truncation makes the angle's error smooth: tau ~ 20 samples are worth one),
-so the gain is counted in independent samples.  An effect is worth its parameters when its gain
-exceeds ``policy.evidence_per_parameter`` for each of them: an effect with two parameters is
-charged twice.  Held-out data already charge an effect that fits noise (it predicts worse), so
-the charge only asks the evidence to be clear of chance.
-
-Beside its charge, a candidate must remove at least ``min_heldout_share`` of some signal's held-out
-structure (an effect that is there removes the pattern it makes; one that buys likelihood while the
-pattern stays is absorbing the misfit of something outside the catalogue), be of a nameable size
-(``min_size_share`` of its catalogue's typical size), and, a sensor's offset, stand clear of the
-error of a zero read off rest readings (a nuisance with a known variance).
+The criterion, the checks and what every model compared is judged by are ``criterion``'s.
 
 The search.  Round by round every remaining candidate is tried on top of the model found so far (all
 parameters of all effects refitted jointly); of those that clear every check, the one that removes the
@@ -43,14 +29,15 @@ from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
-from pipeline.discover.candidates import Evaluator, Fit, fit_candidate, fold_fit, folds_by_cycle, scan
+from pipeline.discover.candidates import Evaluator, Fit, fit_candidate, folds_by_cycle, scan
+from pipeline.discover.criterion import (beyond_zero_error, charge, criterion, evidence, heldout_nll, nameable,
+                                        residual_taus, room, structure_share)
 from pipeline.discover.joint import effect_intervals, joint_fit, sensitivity
 from pipeline.discover.inferred_switches import ambiguous_switches, settled
 from pipeline.discover.measurement import Measurement
 from pipeline.discover.policy import DEFAULT_POLICY, DiscoveryPolicy
-from pipeline.discover.residuals import noise_floor, residuals
+from pipeline.discover.residuals import noise_floor
 from pipeline.discover.start_refit import held_start_sensitivity, hold_offset_of, refine_start
-from pipeline.estimate.fit import autocorrelation_time
 from pipeline.model.effects import CATALOGUE, Effect
 
 
@@ -138,81 +125,6 @@ class Selection:
     refit_samples: int = 0                # samples the effects were refitted on after the search, if more
 
 
-# ------------------------------------------------------------------ the criterion
-
-def evidence(fit: Fit, taus: dict[str, float], n: int) -> float:
-    """Held-out nll removed, in independent samples: per signal n/2 log(MSE before / after) over its
-    autocorrelation time (``fit``'s held-out MSEs are the two folds' together)."""
-    total = 0.0
-    for s, before in fit.heldout_mse_before.items():
-        after = fit.heldout_mse_after.get(s, np.inf)
-        if not (np.isfinite(after) and after > 0 and before > 0):
-            return -np.inf
-        total += 0.5 * n * np.log(before / after) / taus[s]
-    return float(total)
-
-
-# the noise floor's estimate has relative variance ~3/n (``estimate.noise``: robust differences): a measured fact
-FLOOR_RELATIVE_VARIANCE = 3.0
-
-
-def structure_share(fit: Fit, floor: dict[str, float], n: int, policy: DiscoveryPolicy) -> float:
-    """The largest share of one signal's held-out structure (MSE above its noise) the candidate removes:
-    an effect that is there removes the pattern it makes; one that buys likelihood while most of the
-    pattern stays is absorbing the misfit of something else.  A sensor's zero moves its signal alone, so
-    it is not asked for the structure the floor's own error may hold (``floor_sigmas`` of it)."""
-    own = CATALOGUE[fit.name].PARAMS[0].zero_of
-    shares = []
-    for s, b in fit.heldout_mse_before.items():
-        structure, gain = b / floor[s] - 1.0, (b - fit.heldout_mse_after.get(s, np.inf)) / floor[s]
-        if s == own:
-            structure = max(structure - policy.floor_sigmas * np.sqrt(FLOOR_RELATIVE_VARIANCE / n), gain)
-        if structure > 0:
-            shares.append(gain / structure)
-    return float(max(shares, default=0.0))
-
-
-def beyond_zero_error(effect: Effect, meas: Measurement, floor: dict[str, float], policy: DiscoveryPolicy) -> bool:
-    """Whether a sensor's offset stands ``zero_sigmas`` clear of the error of the zero ingest read off rest
-    readings (a nuisance: their mean, with the noise floor over their number as its variance)."""
-    p = effect.PARAMS[0]
-    rest = meas.zero_samples.get(p.zero_of, 0)
-    if not rest or p.zero_of not in floor:
-        return True
-    return abs(effect.parameters[p.name] - p.absent) > policy.zero_sigmas * float(np.sqrt(floor[p.zero_of] / rest))
-
-
-def residual_taus(ev: Evaluator, effects: tuple[Effect, ...]) -> dict[str, float]:
-    return {s: autocorrelation_time(r) for s, r in residuals(ev.meas, ev.sim(effects)).items()}
-
-
-def room(ev: Evaluator, effects: tuple[Effect, ...]) -> float:
-    """The most evidence any further effect could show: the held-out nll of bringing every signal's
-    residual down to its noise floor, counted as the residual's own correlation counts it.  Where even
-    that cannot clear a charge, no round is run."""
-    res = residuals(ev.meas, ev.sim(effects))
-    return float(sum(0.5 * len(r) * np.log(max(float(np.mean(r * r)) / ev.floor[s], 1.0)) / autocorrelation_time(r)
-                     for s, r in res.items()))
-
-
-def charge(name: str, policy: DiscoveryPolicy) -> float:
-    return policy.evidence_per_parameter * len(CATALOGUE[name].PARAMS)
-
-
-def heldout_nll(ev: Evaluator, effects: tuple[Effect, ...], folds, taus: dict[str, float]) -> float:
-    """The model's held-out nll (in independent samples): refitted on each fold's training half by one
-    joint Gauss-Newton step from its fit on all samples, scored on the other half."""
-    total = 0.0
-    sens = sensitivity(ev, effects) if effects else None
-    for train in folds:
-        trial = effects if sens is None else fold_fit(ev, effects, sens, train)
-        res = residuals(ev.meas, ev.sim(trial))
-        for s, r in res.items():
-            x = r[~train]
-            total += 0.5 * len(x) * np.log(float(np.mean(x * x)) + 1e-3 * ev.floor[s]) / taus[s]
-    return float(total) if np.isfinite(total) else np.inf
-
-
 # ------------------------------------------------------------------ the search
 
 def what_it_changes(meas: Measurement, name: str) -> list[str]:
@@ -238,14 +150,6 @@ def excess(ev: Evaluator, effects: tuple[Effect, ...]) -> dict[str, float]:
 class _Run:
     effects: tuple[Effect, ...]
     rounds: list[list[Candidate]]
-
-
-def nameable(effect: Effect, policy: DiscoveryPolicy) -> bool:
-    """Whether some parameter of the effect is at least ``min_size_share`` of its typical size away from
-    absent: a catalogued effect that absorbs a small misfit of another kind (a hot winding read as
-    springs 1-2 % stiffer) takes a small value, so smaller is not named."""
-    return any(abs(effect.parameters[p.name] - p.absent) >= policy.min_size_share * abs(p.typical - p.absent)
-               for p in effect.PARAMS)
 
 
 def _round(ev: Evaluator, effects: tuple[Effect, ...], remaining: list[str], folds, round_: int,
@@ -315,13 +219,6 @@ def _prune(ev: Evaluator, effects: tuple[Effect, ...], folds, policy: DiscoveryP
     return effects
 
 
-def _criterion(ev: Evaluator, effects: tuple[Effect, ...], folds, taus: dict[str, float],
-               policy: DiscoveryPolicy) -> float:
-    """What every model compared is judged by: its held-out nll (in independent samples under ``taus``)
-    plus the charges of its effects' parameters.  Lower is better."""
-    return heldout_nll(ev, effects, folds, taus) + sum(charge(e.name, policy) for e in effects)
-
-
 def _stepwise(ev: Evaluator, names: tuple[str, ...], folds, policy: DiscoveryPolicy, taus: dict[str, float],
               run: _Run) -> tuple[tuple[Effect, ...], list[list[Candidate]]]:
     """Stepwise selection: backward elimination, and, where it dropped an effect, forward selection again
@@ -336,8 +233,8 @@ def _stepwise(ev: Evaluator, names: tuple[str, ...], folds, policy: DiscoveryPol
     while dropped and ev.work <= policy.work_budget:
         again = _forward(ev, names, folds, policy, None, [], effects)
         grown = _prune(ev, again.effects, folds, policy, taus)
-        if key(grown) in seen or (_criterion(ev, grown, folds, taus, policy)
-                                  >= _criterion(ev, effects, folds, taus, policy)):
+        if key(grown) in seen or (criterion(ev, grown, folds, taus, policy)
+                                  >= criterion(ev, effects, folds, taus, policy)):
             break
         seen.add(key(grown))
         dropped = len(grown) < len(again.effects)
@@ -378,7 +275,7 @@ def _search(meas: Measurement, names: tuple[str, ...], policy: DiscoveryPolicy, 
                          if not any(_zero_beside_structure(e, excess(ev, r.effects), policy) for e in r.effects))]
     # one likelihood for every model compared: the residual correlation the plain run leaves
     taus = residual_taus(ev, plain.effects)
-    best = plain if len(runs) == 1 else min(runs, key=lambda r: _criterion(ev, r.effects, folds, taus, policy))
+    best = plain if len(runs) == 1 else min(runs, key=lambda r: criterion(ev, r.effects, folds, taus, policy))
     hold_offset_of(ev, best.effects)
     effects, rounds = _stepwise(ev, names, folds, policy, taus, best)
     adopted = {e.name for r in runs for e in r.effects} | {c.fit.name for rnd in rounds for c in rnd

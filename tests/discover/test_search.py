@@ -7,7 +7,8 @@ from pipeline.discover.candidates import Evaluator
 from pipeline.discover.measurement import measurement_from_kinematics
 from pipeline.discover.policy import DEFAULT_POLICY, DiscoveryPolicy
 from pipeline.discover.residuals import noise_floor
-from pipeline.discover.search import charge, room, select
+from pipeline.discover.criterion import charge, room
+from pipeline.discover.search import select
 from pipeline.model.effects import CATALOGUE, make_effect
 from tests.discover.synthetic import rig_kinematics
 
