@@ -25,6 +25,16 @@ def discovered(tmp_path_factory):
     return draw, d, doc
 
 
+def _assert_explained_within_a_fifth(draw, doc: dict) -> None:
+    """``explained``, every hidden effect named and none else, each parameter within 20 % of the truth."""
+    assert doc["verdict"] == "explained"
+    found = {e["name"]: e["parameters"] for e in doc["effects"]}
+    assert set(found) == {e.name for e in draw.effects}
+    for e in draw.effects:
+        for p, v in e.parameters.items():
+            assert found[e.name][p] == pytest.approx(v, rel=0.2), (e.name, p)
+
+
 def test_the_recording_has_a_switch_on_a_guard(discovered):
     draw, d, _ = discovered
     assert not draw.conventions["dir"] and ambiguous_switches(d.selection.meas)
@@ -32,12 +42,7 @@ def test_the_recording_has_a_switch_on_a_guard(discovered):
 
 def test_the_hidden_effects_are_named_within_a_fifth(discovered):
     draw, _, doc = discovered
-    assert doc["verdict"] == "explained"
-    found = {e["name"]: e["parameters"] for e in doc["effects"]}
-    assert set(found) == {e.name for e in draw.effects}
-    for e in draw.effects:
-        for p, v in e.parameters.items():
-            assert found[e.name][p] == pytest.approx(v, rel=0.2), (e.name, p)
+    _assert_explained_within_a_fifth(draw, doc)
 
 
 @pytest.mark.slow
@@ -51,9 +56,4 @@ def test_switches_settled_again_under_each_model_found_until_none_moves(tmp_path
     write_recording(make_recording(draw.setup), tmp_path / "raw", "r")
     _, doc = discover_run(ingest_and_derive(tmp_path / "raw" / "r.csv", tmp_path / "processed")[0])
     assert not draw.conventions["dir"]
-    assert doc["verdict"] == "explained"
-    found = {e["name"]: e["parameters"] for e in doc["effects"]}
-    assert set(found) == {e.name for e in draw.effects}
-    for e in draw.effects:
-        for p, v in e.parameters.items():
-            assert found[e.name][p] == pytest.approx(v, rel=0.2), (e.name, p)
+    _assert_explained_within_a_fifth(draw, doc)
