@@ -153,3 +153,19 @@ def test_more_step_lengths_than_the_caches_hold_match_reference_plant():
     t = np.concatenate([[0.0], np.cumsum(np.tile(spacings, 2))])
     spec = replace(BASE, **CASES["all_together"])
     _close(simulate(spec, t), simulate_reference(spec, t))
+
+
+def test_a_dead_zone_narrower_than_rounding_runs_as_none():
+    # a fit at its bound left a backlash of 1.6e-17 rad beside a 5 us loop delay (a start estimate's pulse
+    # response, the instants to the bit): the play's edges sit within the closed form's rounding of the
+    # state, where the root finder had no bracket left and divided by zero
+    p = BASE.params.with_(J=0.0009917283571809839, Ke=1.1459, Kt=0.01819, La=18.138, Ra=2.59, K1=0.8682,
+                          K2=0.8682, b=0.00077)
+    spec = replace(BASE, params=p, v_drive=6.33, guard_rad=0.9424777960769379, period_s=0.01,
+                   gap=1.6164693956261088e-17, Td=5.058621511757213e-06, v_supply=6.33)
+    t = np.array([0.0004949413784882423, 0.0004999999999999996, 0.010499999999999999])
+    log = np.array([1, 0, 0], dtype=np.int8)
+    narrow = simulate(spec, t, dir_log=log, closed_loop=False)
+    none = simulate(replace(spec, gap=0.0), t, dir_log=log, closed_loop=False)
+    assert np.allclose(narrow.theta, none.theta, rtol=0.0, atol=1e-12)
+    assert np.allclose(narrow.current, none.current, rtol=0.0, atol=1e-12)
