@@ -15,8 +15,8 @@ from numba import njit
 
 from pipeline.model.linear import step_key
 from pipeline.model.loop import STEPPERS, TIME_EPS, run
-from pipeline.model.nonsmooth import (B, DB, GAP, KD, KT, LA, MAX_STEP, RA, TC, J, R, Plant, advance, cached_step,
-                                      new_plant, reset, spring_torque)
+from pipeline.model.nonsmooth import (B, DB, GAP, KD, KT, LA, MAX_STEP, RA, TC, J, R, Plant, advance, new_plant,
+                                      reset, spring_torque, step_for)
 
 
 @njit(cache=True)
@@ -40,9 +40,7 @@ def quick_entry(pl: Plant, u: float, L: float, guard_mode: int, guard_rad: float
         e = math.exp(-L * p[RA] / p[LA])
         return np.array([e, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, (1.0 - e) * u / p[RA], 0.0, 0.0,
                          -math.inf, math.inf, 0.0, p[KT], 0.0, 0.0, 0.0])
-    PS = cached_step(pl, 1 if z != 0 else 0, step_key(L))
-    if len(PS) == 0:
-        return PS                             # not cached yet: ``advance`` builds it on repeat
+    PS = step_for(pl, 1 if z != 0 else 0, step_key(L))
     c0 = u / p[LA]
     c1 = (z * p[KD] * p[DB] - p[TC] * s) / p[J]
     lo, hi = -math.inf, math.inf
@@ -120,8 +118,8 @@ STEPPERS[Plant] = event_step
 
 
 @njit(cache=True)
-def run_events(p, md, c, t, x0, out, dirs) -> None:
+def run_events(p, md, steps, c, t, x0, out, dirs) -> None:
     """The automaton on the event-driven plant (``loop.run``): stick/slip, backlash edges, the continuous guard."""
-    pl = new_plant(p, md)
+    pl = new_plant(p, md, steps)
     reset(pl, (x0[0], x0[1], x0[2]))
     run(pl, c, t, x0, out, dirs)

@@ -12,7 +12,7 @@ The state is x = [I, w, delta]; the flow is affine in x, in regimes:
 Within a regime the exact solution is modal, ``x(tau) = Re V (e^{L tau} y0 +
 phi(L, tau) d)`` with ``y0 = V^-1 x``, ``d = V^-1 c`` and ``phi = (e^{L tau} - 1)/L``
 (``tau`` for the zero eigenvalue the dead zone has; ``pipeline.model.modal``).  A step of a regime is
-``x+ = Phi x + Psi c`` (Phi, Psi cached per step length from its second use on).  Every switching
+``x+ = Phi x + Psi c`` (Phi, Psi built once per plant and step length and kept across its runs).  Every switching
 surface is affine in the state (theta = +/-gap/2, w = 0, net torque = +/-Tc,
 theta = +/-guard), so each event function g = a.x + b is a sum of three
 exponentials in tau.  A step is accepted when g stays >= 0 at its end and shows
@@ -45,9 +45,10 @@ from pipeline.model.modal import (ModalData, coefficients, event_function, first
 from pipeline.model.params import PlantSpec
 
 MAX_ZERO_LENGTH_EVENTS = 50
-# Step lengths kept per regime, and one-off lengths remembered (to spot the second use of one).
-STEP_CAPACITY = 64
-REQUEST_CAPACITY = 256
+# Step lengths kept per regime and plant, in an open-addressing table (a power of two, filled to 3/4):
+# a recording with microsecond timestamps has a few hundred distinct spacings, each split by a delay.
+STEP_CAPACITY = 1024
+STEP_FILL = 3 * STEP_CAPACITY // 4
 # Steps shorter than this [s] are advanced without event detection (x' * 1e-12 s is far below any tolerance).
 MIN_EVENT_STEP = 1e-12
 
@@ -57,30 +58,31 @@ NONE, ZONE, VEL, STICK, GUARD = 0, 1, 2, 3, 4
 LA, RA, KT, J, B, R, KD, TC, GAP, DB, MAX_STEP = range(11)
 
 
-class Plant(NamedTuple):
-    """What ``advance`` carries between calls: constants, regime (z, s) and the step-matrix caches.
+class StepCache(NamedTuple):
+    """(Phi, Psi) per regime r (0: inside the play, 1: springs engaged) by rounded step length, kept across a
+    plant's runs: a start estimate and a fit replay one plant thousands of times on the same instants.  A step
+    from a sample or a command's arrival is always taken with its matrices (``step_matrices``), cached or not,
+    and one after an event in closed form (``_slip``), so a run's result does not depend on the runs before it."""
 
-    Per regime r (0: inside the play, 1: springs engaged) ``step_keys``/
-    ``step_mats`` hold (Phi, Psi) by rounded step length; ``requested`` holds
-    lengths asked for once, in a ring -- only a length used again earns its
-    matrices.  Small arrays searched in order: a run has a few lengths that
-    repeat (the sample spacings and their subdivisions) among one-off ones
-    that end at events.
-    """
+    keys: np.ndarray         # (2, STEP_CAPACITY), -1 where empty
+    mats: np.ndarray         # (2, STEP_CAPACITY, 18)
+    counts: np.ndarray       # [lengths in regime 0, in regime 1]
+
+
+class Plant(NamedTuple):
+    """What ``advance`` carries between calls: constants, regime (z, s) and the plant's step cache."""
 
     p: np.ndarray            # LA, RA, KT, J, B, R, KD, TC, GAP, DB, MAX_STEP
     md: ModalData
     zs: np.ndarray           # [z, s]
-    step_keys: np.ndarray    # (2, STEP_CAPACITY)
-    step_mats: np.ndarray    # (2, STEP_CAPACITY, 18)
-    requested: np.ndarray    # (2, REQUEST_CAPACITY)
-    counts: np.ndarray       # [steps in regime 0, in regime 1, requests in 0, in 1]
+    steps: StepCache
 
 
 @functools.lru_cache(maxsize=64)
-def plant_constants(spec: PlantSpec) -> tuple[np.ndarray, ModalData]:
-    """The plant's constants and the eigendecompositions of its two regimes (numpy, once per plant:
-    a start estimate and a fit simulate the same plant many times; the kernels only read them)."""
+def plant_constants(spec: PlantSpec) -> tuple[np.ndarray, ModalData, StepCache]:
+    """The plant's constants, the eigendecompositions of its two regimes and its step cache (numpy, once per
+    plant: a start estimate and a fit simulate the same plant many times; the kernels read the first two
+    and fill the third)."""
     p = spec.params
     A, _ = p.state_matrices()
     A_dead = A.copy()
@@ -91,14 +93,14 @@ def plant_constants(spec: PlantSpec) -> tuple[np.ndarray, ModalData]:
     Kd = p.R * (p.K1 + p.K2)                # N m per m of delta: R (K1 + K2), eq. (4)
     const = np.array([p.La, p.Ra, p.Kt, p.J, p.b, p.R, Kd, spec.Tc, spec.gap, p.R * spec.gap / 2.0, max_step],
                      dtype=float)
-    return const, md
+    cache = StepCache(np.full((2, STEP_CAPACITY), -1.0), np.empty((2, STEP_CAPACITY, 18)), np.zeros(2, dtype=np.int64))
+    return const, md, cache
 
 
 @njit(cache=True)
-def new_plant(p: np.ndarray, md: ModalData) -> Plant:
-    """A fresh plant from ``plant_constants`` (regime z = s = +1 until ``reset``)."""
-    return Plant(p, md, np.array([1, 1], dtype=np.int64), np.empty((2, STEP_CAPACITY)),
-                 np.empty((2, STEP_CAPACITY, 18)), np.empty((2, REQUEST_CAPACITY)), np.zeros(4, dtype=np.int64))
+def new_plant(p: np.ndarray, md: ModalData, steps: StepCache) -> Plant:
+    """A plant from ``plant_constants`` (regime z = s = +1 until ``reset``)."""
+    return Plant(p, md, np.array([1, 1], dtype=np.int64), steps)
 
 
 # -- regime bookkeeping -----------------------------------------------------
@@ -134,37 +136,20 @@ def reset(pl: Plant, x: tuple[float, float, float]) -> None:
 
 
 @njit(cache=True)
-def _find(keys: np.ndarray, n: int, key: float) -> int:
-    for i in range(n):
-        if keys[i] == key:
-            return i
-    return -1
-
-
-@njit(cache=True)
-def cached_step(pl: Plant, r: int, key: float) -> np.ndarray:
-    """(Phi, Psi) of regime r for a rounded length if already built, else an empty array."""
-    i = _find(pl.step_keys[r], min(pl.counts[r], STEP_CAPACITY), key)
-    return pl.step_mats[r, i] if i >= 0 else np.empty(0)
-
-
-@njit(cache=True)
 def step_for(pl: Plant, r: int, key: float) -> np.ndarray:
-    """(Phi, Psi) for a rounded length from its second request on, else empty (use the closed form)."""
-    PS = cached_step(pl, r, key)
-    if len(PS):
-        return PS
-    n_req = pl.counts[2 + r]
-    if _find(pl.requested[r], min(n_req, REQUEST_CAPACITY), key) < 0:
-        pl.requested[r, n_req % REQUEST_CAPACITY] = key
-        pl.counts[2 + r] = n_req + 1
-        return PS
+    """(Phi, Psi) of regime r for a rounded step length: from the plant's cache, else built (and kept while
+    the table has room)."""
+    keys = pl.steps.keys[r]
+    i = (int(key * 1e9) * 2654435761) & (STEP_CAPACITY - 1)      # the length in ns, scattered
+    while keys[i] >= 0.0:
+        if keys[i] == key:
+            return pl.steps.mats[r, i]
+        i = (i + 1) & (STEP_CAPACITY - 1)
     PS = step_matrices(pl.md, r, key)
-    n = pl.counts[r]
-    if n < STEP_CAPACITY:                     # beyond that, repeated lengths are rebuilt each time (still exact)
-        pl.step_keys[r, n] = key
-        pl.step_mats[r, n] = PS
-        pl.counts[r] = n + 1
+    if pl.steps.counts[r] < STEP_FILL:
+        keys[i] = key
+        pl.steps.mats[r, i] = PS
+        pl.steps.counts[r] += 1
     return PS
 
 
@@ -179,6 +164,7 @@ def advance(pl: Plant, x: tuple[float, float, float], t0: float, t1: float, u: f
     """
     t = t0
     zero_run = 0
+    after_event = False          # the pieces after an event have one-off lengths: closed form, not cached
     max_step = pl.p[MAX_STEP]
     while t1 - t > 0.0:
         L = t1 - t
@@ -191,11 +177,12 @@ def advance(pl: Plant, x: tuple[float, float, float], t0: float, t1: float, u: f
         if pl.zs[1] == 0:
             x, tau, kind, arg = _stick(pl, x, u, L)
         else:
-            x, tau, kind, arg = _slip(pl, x, u, L, guard_mode, guard_rad)
+            x, tau, kind, arg = _slip(pl, x, u, L, guard_mode, guard_rad, after_event)
         if kind == NONE:
             t = t + L if L < t1 - t else t1
             continue
         t = min(t + tau, t1)
+        after_event = True
         zero_run = zero_run + 1 if tau == 0.0 else 0
         if zero_run > MAX_ZERO_LENGTH_EVENTS:
             raise RuntimeError("nonsmooth plant: too many zero-length events in a row (chattering)")
@@ -321,20 +308,24 @@ def _suspect(pl: Plant, ev: np.ndarray, x, xe, c1: float) -> bool:
 
 
 @njit(cache=True)
-def _slip(pl: Plant, x, u: float, L: float, guard_mode: int, guard_rad: float):
+def _slip(pl: Plant, x, u: float, L: float, guard_mode: int, guard_rad: float, one_off: bool):
     p = pl.p
     z = pl.zs[0]
     r = 1 if z != 0 else 0
     # c: input, Coulomb torque against the motion, spring offset outside the play
     c0 = u / p[LA]
     c1 = (z * p[KD] * p[DB] - p[TC] * pl.zs[1]) / p[J]
-    PS = step_for(pl, r, step_key(L))
-    have_coeffs = len(PS) == 0
-    if have_coeffs:                           # a one-off length: closed form, no matrices
+    # a step from a sample or a command's arrival has a length the run meets again: the plant's step matrices;
+    # one that ends what an event began has a length of its own: the closed form.  Which one is taken depends on
+    # the step alone, never on what the cache holds, so a run's bits do not depend on the runs before it.
+    if one_off:
         y0, d = coefficients(pl.md, r, x[0], x[1], x[2], c0, c1, 0.0)
+        have_coeffs = True
         xe = state(pl.md, r, y0, d, L)
     else:
+        PS = step_for(pl, r, step_key(L))
         y0 = d = np.empty(0, dtype=np.complex128)
+        have_coeffs = False
         I, w, dl = x
         xe = (PS[0] * I + PS[1] * w + PS[2] * dl + PS[9] * c0 + PS[10] * c1,
               PS[3] * I + PS[4] * w + PS[5] * dl + PS[12] * c0 + PS[13] * c1,
