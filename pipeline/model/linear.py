@@ -207,11 +207,18 @@ STEPPERS[Zoh] = zoh_step
 
 
 @njit(cache=True)
-def run_zoh(A, B, c, t, x0, out, dirs) -> None:
-    """The automaton on the linear plant (``loop.run``): one exponential per distinct step length."""
+def zoh_steps(A: np.ndarray, B: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Phi and Gamma per distinct step length of the instants ``t`` (rows of 12), and each step's row: what
+    a replay at these instants needs whatever its start and command (``simulate.Prepared`` keeps them)."""
     lengths, idx = step_lengths(t)
     P = np.empty((len(lengths), 12))
     for j in range(len(lengths)):
         phi_gamma_into(A, B, lengths[j], P[j])
+    return P, idx
+
+
+@njit(cache=True)
+def run_zoh(A, B, P, idx, c, t, x0, out, dirs) -> None:
+    """The automaton on the linear plant (``loop.run``), with the step matrices of ``zoh_steps(A, B, t)``."""
     zp = Zoh(P, idx, A, B, np.empty(MAX_SPLIT_LENGTHS), np.empty((MAX_SPLIT_LENGTHS, 3)), np.zeros(1, dtype=np.int64))
     run(zp, c, t, x0, out, dirs)

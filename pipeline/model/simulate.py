@@ -32,7 +32,7 @@ import numpy as np
 
 from pipeline.errors import PdrError
 from pipeline.model import loop
-from pipeline.model.linear import run_zoh
+from pipeline.model.linear import run_zoh, zoh_steps
 from pipeline.model.event_step import run_events
 from pipeline.model.nonsmooth import plant_constants
 from pipeline.model.params import PlantSpec
@@ -211,7 +211,7 @@ class Prepared:
     t: np.ndarray
     controller: loop.Controller
     shift: float          # A: the constant torque carried as a current (``_torque_shift``)
-    stepper: tuple        # the kernel and the plant's arguments it runs on (A, B or ``plant_constants``)
+    stepper: tuple        # the kernel and the plant's arguments it runs on (``zoh_steps`` or ``plant_constants``)
 
     @classmethod
     def of(cls, spec: PlantSpec, t: np.ndarray | None = None, *, duration: float = 24.95, dir0: int = 1,
@@ -220,7 +220,8 @@ class Prepared:
         t = _times(spec, t, duration)
         controller = _controller(spec, t, dir0, dir_log, closed_loop, guard, v_bias)
         if spec.is_linear and not controller.continuous:
-            stepper = (run_zoh, *spec.params.state_matrices())         # exact ZOH steps
+            A, B = spec.params.state_matrices()
+            stepper = (run_zoh, A, B, *zoh_steps(A, B, t))              # exact ZOH steps, once per instants
         else:
             stepper = (run_events, *plant_constants(spec))             # located events
         return cls(spec, t, controller, shift, stepper)
