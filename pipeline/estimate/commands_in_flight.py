@@ -44,27 +44,37 @@ def changes(commands: tuple[int, ...], first: int) -> int:
     return sum(a != b for a, b in zip(seq[:-1], seq[1:]))
 
 
-def fit_commands(r0: np.ndarray, F: np.ndarray, P: np.ndarray, w: np.ndarray, m: int,
-                 first: int) -> list[tuple[float, tuple[int, ...], np.ndarray]]:
-    """(cost, pre-log commands, coefficients) of every sequence under weights ``w``, most probable
-    first; the cost is the weighted squared residual plus the prior's ``SWITCH_PENALTY`` per change."""
-    Fw = F * w[:, None]
-    normal = Fw.T @ Fw
-    inverse = pinv(normal)
-    out = []
-    for c, cf in zip(command_sequences(m), _sequence_arrays(m)):
-        target = (r0 - P @ cf) * w if m else r0 * w
-        rhs = Fw.T @ target
-        a = inverse @ rhs
-        cost = float(target @ target - rhs @ a) + SWITCH_PENALTY * changes(c, first)
-        out.append((cost, c, a))
-    return sorted(out, key=lambda item: item[0]) if m else out
+class InFlight:
+    """Every pre-log command sequence worth trying (``command_sequences``) for one start estimate, with the
+    response to each (the pulse responses ``P`` summed, once: the estimate asks after every reweighting)."""
+
+    def __init__(self, P: np.ndarray) -> None:
+        self.m = m = P.shape[1]
+        self.sequences = command_sequences(m)
+        # one matrix-vector product per sequence: a product of the stacked sequences would be large enough,
+        # under a long loop delay, for the BLAS to wake its threads, which then spin on the other core
+        self.responses = np.stack([P @ np.asarray(c, dtype=float) for c in self.sequences]) if m else \
+            np.zeros((1, P.shape[0]))
+
+    def fit(self, r0: np.ndarray, F: np.ndarray, w: np.ndarray,
+            first: int) -> list[tuple[float, tuple[int, ...], np.ndarray]]:
+        """(cost, pre-log commands, coefficients) of every sequence under weights ``w``, most probable first;
+        the cost is the weighted squared residual plus the prior's ``SWITCH_PENALTY`` per change.  One
+        normal matrix, every sequence's right-hand side at once."""
+        Fw = F * w[:, None]
+        inverse = pinv(Fw.T @ Fw)
+        targets = (r0 - self.responses) * w
+        rhs = targets @ Fw
+        a = rhs @ inverse.T
+        cost = np.einsum("ij,ij->i", targets, targets) - np.einsum("ij,ij->i", rhs, a) + _penalties(self.m, first)
+        order = np.argsort(cost, kind="stable").tolist() if self.m else range(len(self.sequences))
+        return [(float(cost[i]), self.sequences[i], a[i]) for i in order]
 
 
 @lru_cache(maxsize=None)
-def _sequence_arrays(m: int) -> tuple[np.ndarray, ...]:
-    """``command_sequences(m)`` as float vectors, built once (``fit_commands`` asks per reweighting)."""
-    return tuple(np.asarray(c, dtype=float) for c in command_sequences(m))
+def _penalties(m: int, first: int) -> np.ndarray:
+    """Each of ``command_sequences(m)``'s prior charge before the first logged command ``first``."""
+    return np.array([SWITCH_PENALTY * changes(c, first) for c in command_sequences(m)])
 
 
 def pinv(a: np.ndarray) -> np.ndarray:

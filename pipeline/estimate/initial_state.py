@@ -30,7 +30,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from pipeline.estimate.commands_in_flight import command_spread, fit_commands, lead_offsets, pinv
+from pipeline.estimate.commands_in_flight import InFlight, command_spread, lead_offsets, pinv
 from pipeline.estimate.start import Start, first_dir
 from pipeline.model.effects import PlantSpec
 from pipeline.model.simulate import Prepared, SimResult, with_lost_samples
@@ -268,6 +268,7 @@ class StartEstimator:
             c[j] = 1
             pulses.append(p.outputs(p.run((0.0, 0.0, 0.0), c, logged=False), measured=False) - rest_out)
         self.P = np.column_stack(pulses) if pulses else np.zeros((len(p.y), 0))
+        self.in_flight = InFlight(self.P)
         self.p = p
         self._base: dict[bytes, np.ndarray] = {}
         self._refined: np.ndarray | None = None    # the last Gauss-Newton start (``_warmer``)
@@ -326,7 +327,7 @@ class StartEstimator:
         best = None
         for variances in _first_weights(p):
             for _ in range(REWEIGHTS):
-                fits = fit_commands(r0, F, P, p.weights(variances), p.m, int(p.log[0]))
+                fits = self.in_flight.fit(r0, F, p.weights(variances), int(p.log[0]))
                 _, commands, a = fits[0]
                 residual = r0 - P @ np.asarray(commands, dtype=float) - F @ a
                 previous, variances = variances, p.variances(residual)
