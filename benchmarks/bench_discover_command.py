@@ -75,6 +75,21 @@ def run_command(pdr: Path, csv: Path, processed: Path, env: dict[str, str]) -> d
                   "stopped_for_time": bool(doc.get("stopped_for_time"))}
 
 
+# values that differ by less than this share are the same finding: a faster simulator's other rounding moves
+# a fitted value by ~1e-9 of itself, well inside any interval a recording gives
+SAME_VALUE = 1e-6
+
+
+def same_decision(run: dict, first: dict) -> bool:
+    """The same verdict, the same effects in the same order, each value within ``SAME_VALUE`` of the first's."""
+    if (run.get("verdict"), run.get("error")) != (first.get("verdict"), first.get("error")):
+        return False
+    a, b = run.get("effects") or {}, first.get("effects") or {}
+    if list(a) != list(b) or any(list(a[n]) != list(b[n]) for n in a):
+        return False
+    return all(abs(a[n][k] - b[n][k]) <= SAME_VALUE * max(abs(b[n][k]), 1e-300) for n in a for k in a[n])
+
+
 def _answer(run: dict) -> str:
     return f"{run['answer_s']:5.2f} s" if run["answer_s"] is not None else "  -   "
 
@@ -106,8 +121,7 @@ def main(variants: list[tuple[str, Path, dict[str, str]]] | None = None, indices
             first = row["runs"][variants[0][0]]
             for name, _, _ in variants[1:]:
                 r = row["runs"][name]
-                r["same_decision"] = (r.get("verdict"), r.get("effects"), r.get("error")) == \
-                    (first.get("verdict"), first.get("effects"), first.get("error"))
+                r["same_decision"] = same_decision(r, first)
             rows.append(row)
             print(f"{i:4d} {row['samples']:6d} samples  " + "  ".join(
                 f"{n} {_answer(row['runs'][n])} answer {row['runs'][n]['wall_s']:5.2f} s wall "
