@@ -1,7 +1,11 @@
-"""A recording without a logged command: its command is inferred from the guards (the derive stage), and
-a switch whose measured angle lies on a guard (within half a count) may have come a sample later.  These
-switches are a nuisance of discovery: settled under a model (``settled``), again under the effects found
-(``search.select``)."""
+"""Switches whose sample the data leave open, a nuisance of discovery: settled under a model (``settled``),
+again under the effects found (``search.select``).
+
+- A recording without a logged command: its command is inferred from the guards (the derive stage), and
+  a switch whose measured angle lies on a guard (within half a count) may have come a sample later.
+- A reversal in a gap of rows lost over serial: the sketch's rule on the angle interpolated at the lost
+  instant decides it (``simulate.lost_samples_filled``), and where that angle lies on a guard (within
+  half a count) it may be a sample off."""
 
 from __future__ import annotations
 
@@ -12,6 +16,7 @@ import numpy as np
 from pipeline.discover.measurement import Measurement
 from pipeline.discover.residuals import noise_floor, residuals
 from pipeline.model.effects import Effect
+from pipeline.model.simulate import lost_reversals_on_guard
 
 
 def ambiguous_switches(meas: Measurement) -> list[int]:
@@ -24,6 +29,24 @@ def ambiguous_switches(meas: Measurement) -> list[int]:
     g = meas.config.controller.guard_rad
     near = (np.abs(meas.theta - g) <= half) | (np.abs(meas.theta + g) <= half)
     return [int(k) for k in np.flatnonzero(near) if 0 < k < meas.n - 1 and meas.dir[k] != 0]
+
+
+def ambiguous_lost_reversals(meas: Measurement) -> list[int]:
+    """Logged samples after which a reversal in a gap of lost rows has its interpolated angle within half an
+    encoder count of a guard (``simulate.lost_reversals_on_guard``)."""
+    if meas.dir_source != "logged":
+        return []
+    return lost_reversals_on_guard(meas.t, meas.dir, meas.theta, float(meas.config.controller.guard_rad),
+                                   np.pi / meas.config.encoder.counts_per_rev)
+
+
+def ambiguous(meas: Measurement) -> bool:
+    return bool(ambiguous_switches(meas) or ambiguous_lost_reversals(meas))
+
+
+def timing(meas: Measurement) -> bytes:
+    """The switches' timing a measurement replays (a key: the commands and the lost rows' reversals)."""
+    return meas.dir.tobytes() + np.asarray(meas.lost_shifts, dtype=np.int64).tobytes()
 
 
 def settle_switches(meas: Measurement, nll) -> Measurement:
@@ -55,11 +78,15 @@ def settle_switches(meas: Measurement, nll) -> Measurement:
             if value < best_nll:
                 best, best_nll = trial, value
         meas = best
+    for i in ambiguous_lost_reversals(meas):
+        trial = replace(meas, lost_shifts=tuple(sorted(set(meas.lost_shifts) ^ {i})))
+        if nll(trial) < nll(meas):
+            meas = trial
     return meas
 
 
 def settled(meas: Measurement, effects: tuple[Effect, ...]) -> Measurement:
-    """The ambiguous inferred switches settled under ``effects``, each timing judged by the pattern it
+    """The ambiguous switches (inferred, and reversals on lost rows) settled under ``effects``, each timing judged by the pattern it
     leaves in each signal about its own mean: a level the model misses (a sensor's offset, where a
     constant torque rests the springs) moves both timings alike, and judged with it the timing went
     whichever way the missing level leaned."""

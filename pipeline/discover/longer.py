@@ -38,7 +38,8 @@ def refit_on_more_samples(sel: Selection, kin: pd.DataFrame, config: RigConfig, 
     if (sel.verdict != "explained" or window.samples_in_recording <= window.n or not window.angle_reference_known
             or window.dir_source != "logged"):
         return sel
-    longer = measurement_from_kinematics(kin, config, name, zero_samples=zero_samples, max_samples=REFIT_SAMPLES)
+    longer = replace(measurement_from_kinematics(kin, config, name, zero_samples=zero_samples,
+                                                 max_samples=REFIT_SAMPLES), lost_shifts=window.lost_shifts)
     ev = Evaluator(longer, noise_floor(longer, longer.replay(longer.spec())))
     effects = joint_fit(ev, sel.effects)
     if effects == sel.effects or not all(nameable(e, sel.policy) for e in effects):

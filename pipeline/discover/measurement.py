@@ -62,6 +62,9 @@ class Measurement:
     # per signal whose zero ingest read off the data itself (a current zero = "auto"), the number of
     # rest readings it is the mean of: an offset within that mean's error may be the zero's own
     zero_samples: dict[str, int] = field(default_factory=dict, compare=False)
+    # logged samples after which the reversal in a gap of lost rows is a sample from where the sketch's rule on
+    # the interpolated angle puts it (``simulate.lost_samples_filled``): a nuisance discovery settles
+    lost_shifts: tuple[int, ...] = ()
     cache: StartCache = field(default_factory=StartCache, repr=False)
 
     @property
@@ -126,23 +129,25 @@ class Measurement:
             self.cache.estimators[plant] = StartEstimator(plant, self.t, self.observed,
                                                      angle_offset=not self.angle_reference_known)
         estimator = self.cache.estimators[plant]
-        key = (plant, estimator.window(d), spec.I0)
+        key = (plant, estimator.window(d, self.lost_shifts), spec.I0)
+        shifted = self.lost_shifts
         if key not in self.cache.starts:
             if self.angle_reference_known:
-                self.cache.starts[key] = estimator.start(d, spec.I0)
+                self.cache.starts[key] = estimator.start(d, spec.I0, shifted=shifted)
             elif self.cache.offsets:
                 # the offset is the counter's, one per segment: estimated under the first model asked
                 # (the base), then held, as the angle residual is taken about its own mean anyway
                 # (re-estimating it for every candidate's plant tripled each start's cost), and fitted
                 # again under the final model (``discover.start_refit``)
-                self.cache.starts[key] = estimator.start(d, spec.I0, offset=self.cache.offsets["segment"])
+                self.cache.starts[key] = estimator.start(d, spec.I0, offset=self.cache.offsets["segment"],
+                                                         shifted=shifted)
             else:
                 # the first seconds alone barely tell the counter's offset from where the springs hold
                 # the pinion (a segment opening at rest, creeping): the whole segment pins it
-                start = estimator.start(d, spec.I0)
+                start = estimator.start(d, spec.I0, shifted=shifted)
                 offset = self._segment_offset(plant, spec.I0, start, d)
                 if offset is not None:
-                    start = estimator.start(d, spec.I0, offset=offset)
+                    start = estimator.start(d, spec.I0, offset=offset, shifted=shifted)
                     self.cache.offsets["segment"] = offset
                 self.cache.starts[key] = start
         return self.cache.starts[key]
@@ -194,7 +199,8 @@ class Measurement:
     def start_with_offset(self, spec: PlantSpec, dir_log: np.ndarray, offset: float) -> Start:
         """The start under ``spec`` and ``dir_log`` with the counter's ``offset`` (not remembered)."""
         self.x0(spec, dir_log)
-        return self.cache.estimators[without_offset(spec)].start(dir_log, spec.I0, offset=offset)
+        return self.cache.estimators[without_offset(spec)].start(dir_log, spec.I0, offset=offset,
+                                                                 shifted=self.lost_shifts)
 
     def hold_offset(self, spec: PlantSpec | None, offset: float) -> None:
         """Hold the counter's ``offset``; the starts under ``spec``'s plant (None: every plant's) are
@@ -209,7 +215,7 @@ class Measurement:
         first seconds: ``discover.start_refit``)."""
         self.x0(spec, dir_log)
         plant = without_offset(spec)
-        self.cache.starts[(plant, self.cache.estimators[plant].window(dir_log), spec.I0)] = start
+        self.cache.starts[(plant, self.cache.estimators[plant].window(dir_log, self.lost_shifts), spec.I0)] = start
 
     def simulate_ways(self, spec: PlantSpec, dir_log: np.ndarray) -> dict[str, SimResult]:
         """Closed loop and replay at the recording's own instants, from its start (validation's two ways)."""
@@ -241,7 +247,8 @@ class Measurement:
         smooth in the model's parameters, and right after a reset, where the two frames differ."""
         m = self.n if n is None else n
         t = self.t_fit if t is None else t
-        return start.simulate(spec, t[:m], dir_log[:m], closed_loop=closed_loop, angle=self.theta[:m])
+        return start.simulate(spec, t[:m], dir_log[:m], closed_loop=closed_loop, angle=self.theta[:m],
+                              shifted=self.lost_shifts)
 
 
 # Discovery fits the first MAX_SAMPLES samples of a longer recording: each candidate costs a few

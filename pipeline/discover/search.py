@@ -33,7 +33,7 @@ from pipeline.discover.candidates import Evaluator, Fit, fit_candidate, folds_by
 from pipeline.discover.criterion import (beyond_zero_error, charge, criterion, evidence, heldout_nll, nameable,
                                         residual_taus, room, structure_share)
 from pipeline.discover.joint import effect_intervals, joint_fit, sensitivity
-from pipeline.discover.inferred_switches import ambiguous_switches, settled
+from pipeline.discover.inferred_switches import ambiguous, settled, timing
 from pipeline.discover.measurement import Measurement
 from pipeline.discover.policy import DEFAULT_POLICY, DiscoveryPolicy
 from pipeline.discover.residuals import noise_floor
@@ -315,19 +315,20 @@ def select(meas: Measurement, names: tuple[str, ...] | None = None,
            policy: DiscoveryPolicy = DEFAULT_POLICY) -> Selection:
     """Discovery on one recording (replay fits; the closed loop is confirmed by the caller).
 
-    Inferred switches a sample apart are nuisances, settled with the model: by the base model first,
-    then, while what is found leaves structure, by the model found, and searched again, until the
-    switches no longer move (the run that leaves least structure is kept)."""
+    Switches the data leave a sample open (inferred ones on a guard, reversals on rows lost over serial)
+    are nuisances, settled with the model: by the base model first, then, while what is found leaves
+    structure, by the model found, and searched again, until the switches no longer move (the run that
+    leaves least structure is kept)."""
     names = candidate_names(meas, names)
-    if not ambiguous_switches(meas):
+    if not ambiguous(meas):
         return _search(meas, names, policy)
     best = last = _search(settled(meas, ()), names, policy)
-    seen = {best.meas.dir.tobytes()}
+    seen = {timing(best.meas)}
     while last.verdict == "unexplained" and last.effects and last.work <= policy.total_work_budget:
         again = settled(meas, last.effects)
-        if again.dir.tobytes() in seen:
+        if timing(again) in seen:
             break
-        seen.add(again.dir.tobytes())
+        seen.add(timing(again))
         last = _search(again, names, policy, spent=last.work)
         if max(last.excess_after.values()) < max(best.excess_after.values()):
             best = last

@@ -131,13 +131,14 @@ class _Problem:
     def forget_runs(self) -> None:
         self._runs.clear()
 
-    def set_log(self, log: np.ndarray) -> None:
+    def set_log(self, log: np.ndarray, shifted: tuple[int, ...] = ()) -> None:
         """The logged commands of this estimate, and on the loop's instants (``with_lost_samples``: a lost
-        row's command by the sketch's rule on the measured angle, its own count's frame), fixed by the
-        data, not by the model's angle, so the replay stays affine in x0."""
+        row's command by the sketch's rule on the measured angle, its own count's frame, or a sample from it
+        after the samples ``shifted``), fixed by the data, not by the model's angle, so the replay stays
+        affine in x0."""
         self.log = log
         self.loop_log = log if self.kept[-1] + 1 == len(self.kept) else with_lost_samples(
-            self.t[self.m:][self.kept], log, self.theta_measured, float(self.spec.guard_rad))[1]
+            self.t[self.m:][self.kept], log, self.theta_measured, float(self.spec.guard_rad), shifted)[1]
 
     def outputs(self, sim: SimResult, measured: bool = True) -> np.ndarray:
         """Model outputs at the real samples (``measured``: the current as the sensor reads it, + I0)."""
@@ -300,13 +301,17 @@ class StartEstimator:
         """Simulations this estimator has run, its unit and pulse responses included."""
         return self.p.runs
 
-    def window(self, dir_log: np.ndarray) -> bytes:
-        """The part of a command sequence the estimate sees (a cache key)."""
-        return np.asarray(dir_log[:self.p.n], dtype=np.int8).tobytes()
+    def window(self, dir_log: np.ndarray, shifted: tuple[int, ...] = ()) -> bytes:
+        """The part of a command sequence the estimate sees, with the lost rows' reversals moved in it (a cache
+        key)."""
+        inside = [i for i in sorted(shifted) if i + 1 < self.p.n]
+        return np.asarray(dir_log[:self.p.n], dtype=np.int8).tobytes() + np.asarray(inside, dtype=np.int64).tobytes()
 
-    def start(self, dir_log: np.ndarray, I0: float = 0.0, offset: float | None = None) -> Start:
+    def start(self, dir_log: np.ndarray, I0: float = 0.0, offset: float | None = None,
+              shifted: tuple[int, ...] = ()) -> Start:
         """x0, its covariance and the pre-log commands under ``dir_log`` and sensor offset ``I0``
-        (and, for an estimator with a free ``angle_offset``, that offset when it is known from elsewhere).
+        (and, for an estimator with a free ``angle_offset``, that offset when it is known from elsewhere),
+        with the reversals in the gaps of lost rows after the samples ``shifted`` a sample from the rule's.
 
         Signals are weighted by their noise or their misfit, whichever is larger, reweighted a
         few times from two starts (``_first_weights``); the start with the better concentrated
@@ -314,8 +319,8 @@ class StartEstimator:
         """
         p = self.p
         p.forget_runs()
-        key = self.window(dir_log)
-        p.set_log(np.frombuffer(key, dtype=np.int8).copy())
+        key = self.window(dir_log, shifted)
+        p.set_log(np.asarray(dir_log[:p.n], dtype=np.int8).copy(), tuple(i for i in sorted(shifted) if i + 1 < p.n))
         if key not in self._base:
             self._base[key] = p.y - p.outputs(p.run((0.0, 0.0, 0.0), np.zeros(p.m, dtype=np.int8)), measured=False)
         p.I0 = float(I0)

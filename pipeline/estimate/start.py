@@ -37,14 +37,16 @@ class Start:
         return replace(self, z=z, x0=z if not self.lead_s else self.x0)
 
     def simulate(self, spec: PlantSpec, t: np.ndarray, dir_log: np.ndarray, *, closed_loop: bool,
-                 angle: np.ndarray | None = None) -> SimResult:
+                 angle: np.ndarray | None = None, shifted: tuple[int, ...] = ()) -> SimResult:
         """``simulate`` from this start at the instants ``t`` (replay, or closed loop after the log's start),
         on the sketch's own loop instants: a row lost over serial is simulated too, its command decided
         by the sketch's rule (``with_lost_samples``: on the measured ``angle`` when given, one per
-        sample in the guard's frame, else on the model's), and left out of the result."""
+        sample in the guard's frame, else on the model's; ``shifted``: the gaps whose reversal is a sample
+        from the rule's), and left out of the result."""
         t = np.asarray(t, dtype=float)
         dir0 = first_dir(np.concatenate([np.asarray(self.commands, dtype=np.int8), np.asarray(dir_log, dtype=np.int8)]))
-        t_loop, d_loop, kept = with_lost_samples(t, np.asarray(dir_log, dtype=np.int8), angle, float(spec.guard_rad))
+        t_loop, d_loop, kept = with_lost_samples(t, np.asarray(dir_log, dtype=np.int8), angle, float(spec.guard_rad),
+                                                  shifted)
         log = np.concatenate([np.asarray(self.commands, dtype=np.int8), d_loop])
         t_all = np.concatenate([t[0] + np.asarray(self.lead_s, dtype=float), t_loop])
         z = self.x0 if self.z is None else self.z

@@ -111,20 +111,21 @@ def _controller(spec: PlantSpec, t: np.ndarray, dir0: int, dir_log, closed_loop:
 
 
 def with_lost_samples(t: np.ndarray, dir_log: np.ndarray, angle: np.ndarray | None = None,
-                      guard: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                      guard: float = 0.0, shifted: tuple[int, ...] = ()) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``lost_samples_filled``, remembered: a fit replays the same recording under the same command
     hundreds of times, and filling its gaps (a cubic per gap) costs more than the replay's own
     set-up.  The arrays returned are read-only (shared between callers)."""
     t = np.asarray(t, dtype=float)
     d = np.asarray(dir_log)
     a = None if angle is None else np.asarray(angle, dtype=float)
-    return _filled(t.tobytes(), d.tobytes(), d.dtype.str, None if a is None else a.tobytes(), float(guard))
+    return _filled(t.tobytes(), d.tobytes(), d.dtype.str, None if a is None else a.tobytes(), float(guard),
+                   tuple(sorted(shifted)))
 
 
 @lru_cache(maxsize=256)
-def _filled(t: bytes, d: bytes, dtype: str, angle: bytes | None, guard: float):
+def _filled(t: bytes, d: bytes, dtype: str, angle: bytes | None, guard: float, shifted: tuple[int, ...]):
     out = lost_samples_filled(np.frombuffer(t), np.frombuffer(d, dtype=dtype),
-                              None if angle is None else np.frombuffer(angle), guard)
+                              None if angle is None else np.frombuffer(angle), guard, shifted)
     for x in out:
         x.flags.writeable = False
     return out
@@ -133,31 +134,57 @@ def _filled(t: bytes, d: bytes, dtype: str, angle: bytes | None, guard: float):
 MAX_LOST_ROWS = 50      # the longest run of lost rows filled back (2.5 s at the paper's 50 ms)
 
 
-def lost_samples_filled(t: np.ndarray, dir_log: np.ndarray, angle: np.ndarray | None = None,
-                        guard: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The sketch's own loop instants: every gap of about k sample periods (k >= 2, a row lost over
-    serial) gets its k - 1 missing instants back, evenly spaced.  Returns (instants, commands, index of
-    each logged sample among them); without gaps, the inputs.
-
-    The sketch decided something at a lost instant.  Between two equal logged commands it held that
-    one (a reversal there would need the other guard within one row).  Between two different ones
-    it reversed at a lost instant or at the next logged one: with the measured ``angle`` (one per
-    logged sample, in the guard's frame), the sketch's rule on it interpolated there (a cubic through
-    two logged samples each side) decides, so a
-    replay is fixed by the data and smooth in the model's parameters; without it, an ``UNKNOWN``
-    command, which the simulation's controller decides on the model's angle."""
-    t = np.asarray(t, dtype=float)
+def _gaps(t: np.ndarray) -> np.ndarray:
+    """Per spacing of ``t``, the rows lost in it (a gap of about k sample periods holds k - 1)."""
     h = np.diff(t)
-    if len(h) < 2:
-        return t, np.asarray(dir_log), np.arange(len(t))
     period = float(np.median(h))
     with np.errstate(over="ignore", invalid="ignore"):
         k = np.rint(h / period) - 1 if period > 0 else np.zeros(len(h))
     # a gap longer than MAX_LOST_ROWS periods is not rows lost over serial but a gap (a paused capture, a
     # timestamp glitch): the simulation steps across it, so its length follows the samples, not the span
-    missing = np.where((h > 1.5 * period) & (k <= MAX_LOST_ROWS), k, 0).astype(int)
+    return np.where((h > 1.5 * period) & (k <= MAX_LOST_ROWS), k, 0).astype(int)
+
+
+def _reversal_gap(dir_log: np.ndarray, i: int) -> bool:
+    """The logged commands either side of the gap after sample ``i`` differ: the sketch reversed in it or at
+    the next logged sample (between two equal ones it held, as a reversal would need the other guard)."""
+    before, after = int(dir_log[i]), int(dir_log[i + 1])
+    return before in (-1, 1) and after != before and after != loop.UNKNOWN
+
+
+def _angle_at(t: np.ndarray, angle: np.ndarray, i: int, instants: np.ndarray) -> np.ndarray | None:
+    """The measured angle at ``instants`` inside the gap after sample ``i``: the angle bends towards a guard
+    (the motor is braking it), so a cubic through two logged samples each side, not a chord."""
+    near = np.arange(max(i - 1, 0), min(i + 3, len(t)))
+    near = near[np.isfinite(angle[near])]
+    if i not in near or i + 1 not in near:
+        return None
+    fit = np.polyfit(t[near] - t[i], angle[near], len(near) - 1)
+    return np.polyval(fit, instants - t[i])
+
+
+def lost_samples_filled(t: np.ndarray, dir_log: np.ndarray, angle: np.ndarray | None = None,
+                        guard: float = 0.0, shifted: tuple[int, ...] = ()) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The sketch's own loop instants: every gap of about k sample periods (k >= 2, a row lost over
+    serial) gets its k - 1 missing instants back, evenly spaced.  Returns (instants, commands, index of
+    each logged sample among them); without gaps, the inputs.
+
+    The sketch decided something at a lost instant.  Between two equal logged commands it held that
+    one.  Between two different ones it reversed at a lost instant or at the next logged one: with the
+    measured ``angle`` (one per logged sample, in the guard's frame), the sketch's rule on it
+    interpolated there (``_angle_at``) decides, so a replay is fixed by the data and smooth in the
+    model's parameters; without it, an ``UNKNOWN`` command, which the simulation's controller decides
+    on the model's angle.  A gap after a logged sample in ``shifted`` has its reversal one instant from
+    where the rule put it (later, or at the last lost instant where the rule put it at the next logged
+    sample): where the interpolated angle is within a count of the guard, the rule may be a sample off
+    (``lost_reversals_on_guard``), and discovery settles which."""
+    t = np.asarray(t, dtype=float)
+    if len(t) < 3:
+        return t, np.asarray(dir_log), np.arange(len(t))
+    missing = _gaps(t)
     if not missing.any():
         return t, np.asarray(dir_log), np.arange(len(t))
+    h = np.diff(t)
     kept = np.concatenate([[0], np.cumsum(missing + 1)])
     t_full = np.empty(kept[-1] + 1)
     d_full = np.full(kept[-1] + 1, loop.UNKNOWN, dtype=np.int8)
@@ -169,18 +196,39 @@ def lost_samples_filled(t: np.ndarray, dir_log: np.ndarray, angle: np.ndarray | 
         if (before == after and before != loop.UNKNOWN) or before == 0:
             d_full[kept[i] + 1:kept[i + 1]] = before          # held (the motor off: as the loop holds it)
         elif angle is not None and before in (-1, 1):
-            near = np.arange(max(i - 1, 0), min(i + 3, len(t)))        # two logged samples each side
-            near = near[np.isfinite(angle[near])]
-            if i not in near or i + 1 not in near:
+            lost = t_full[kept[i] + 1:kept[i + 1]]
+            at = _angle_at(t, angle, i, lost)
+            if at is None:
                 continue
-            # the angle bends towards a guard (the motor is braking it): a cubic through the
-            # neighbours, not a chord, says whether the guard was reached at the lost instant
-            fit = np.polyfit(t[near] - t[i], angle[near], len(near) - 1)
             d = before
-            for j in range(1, m + 1):
-                d = next_dir(d, float(np.polyval(fit, t_full[kept[i] + j] - t[i])), guard)
-                d_full[kept[i] + j] = d
+            for j in range(m):
+                d = next_dir(d, float(at[j]), guard)
+                d_full[kept[i] + 1 + j] = d
+            if i in shifted and _reversal_gap(dir_log, i):
+                gap = d_full[kept[i] + 1:kept[i + 1]]
+                r = int(np.argmax(gap != before)) if np.any(gap != before) else m   # lost instants before it
+                r = r + 1 if r < m else r - 1
+                gap[:r], gap[r:] = before, after
     return t_full, d_full, kept
+
+
+def lost_reversals_on_guard(t: np.ndarray, dir_log: np.ndarray, angle: np.ndarray, guard: float,
+                            band: float) -> list[int]:
+    """Logged samples after which a reversal falls in a gap of lost rows with the interpolated angle at one
+    of its lost instants within ``band`` of a guard: the sketch's rule on it may be a sample off."""
+    t = np.asarray(t, dtype=float)
+    if len(t) < 3:
+        return []
+    missing = _gaps(t)
+    out = []
+    for i in np.flatnonzero(missing):
+        if not _reversal_gap(dir_log, i):
+            continue
+        m = missing[i]
+        at = _angle_at(t, np.asarray(angle, dtype=float), i, t[i] + (t[i + 1] - t[i]) * np.arange(1, m + 1) / (m + 1))
+        if at is not None and np.any(np.abs(np.abs(at) - guard) <= band):
+            out.append(int(i))
+    return out
 
 
 def simulate(spec: PlantSpec, t: np.ndarray | None = None, *, duration: float = 24.95,

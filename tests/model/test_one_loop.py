@@ -57,6 +57,31 @@ def test_lost_rows_are_simulated_and_decided_by_the_sketchs_rule():
     assert np.max(np.abs(held.theta - full.theta[keep])) > 1e-3
 
 
+def test_a_lost_reversal_on_the_guard_is_found_and_shifted_a_sample():
+    """Where the angle interpolated at a lost instant lies within a band of the guard, the rule may be a
+    sample off: the gap is reported, and ``shifted`` moves its reversal one instant (later, or earlier
+    where the rule put it at the next logged sample); gaps between equal commands never move."""
+    from pipeline.model.simulate import lost_reversals_on_guard, with_lost_samples
+
+    spec = default_config().plant_spec()
+    t = np.arange(400) * 0.05
+    full = simulate(spec, t)
+    switch = int(np.flatnonzero(np.diff(full.dir) != 0)[2]) + 1
+    lost = np.array([switch, 120])
+    keep = np.setdiff1d(np.arange(len(t)), lost)
+    args = (t[keep], full.dir[keep], full.theta[keep], spec.guard_rad)
+    gap = int(np.searchsorted(keep, switch)) - 1                     # the logged sample before the lost switch
+    assert lost_reversals_on_guard(*args, band=0.05) == [gap]          # the reversal's gap, not the held one
+    assert lost_reversals_on_guard(*args, band=1e-9) == []
+    _, rule, _ = with_lost_samples(*args)
+    _, moved, _ = with_lost_samples(*args, shifted=(gap,))
+    assert rule[switch] == full.dir[switch] != full.dir[switch - 1]   # the rule reversed at the lost instant
+    assert moved[switch] == full.dir[switch - 1]                      # shifted: a sample later, at the next logged one
+    assert np.array_equal(np.delete(moved, switch), np.delete(rule, switch))
+    held = int(np.searchsorted(keep, 120)) - 1
+    assert np.array_equal(with_lost_samples(*args, shifted=(held,))[1], rule)
+
+
 def test_without_gaps_the_instants_are_the_logged_ones():
     from pipeline.model.simulate import with_lost_samples
 
