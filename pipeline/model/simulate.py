@@ -176,7 +176,7 @@ def lost_samples_filled(t: np.ndarray, dir_log: np.ndarray, angle: np.ndarray | 
     model's parameters; without it, an ``UNKNOWN`` command, which the simulation's controller decides
     on the model's angle.  A gap after a logged sample in ``shifted`` has its reversal one instant from
     where the rule put it (later, or at the last lost instant where the rule put it at the next logged
-    sample): where the interpolated angle is within a count of the guard, the rule may be a sample off
+    sample): where the interpolated angle is within half a count of the guard, the rule may be a sample off
     (``lost_reversals_on_guard``), and discovery settles which."""
     t = np.asarray(t, dtype=float)
     if len(t) < 3:
