@@ -1,5 +1,6 @@
-"""Free local ports for the tests that start servers (bound to 127.0.0.1 only)."""
+"""Free local ports for the tests that start servers (bound to 127.0.0.1 only), and how they start them."""
 
+import signal
 import socket
 
 
@@ -21,3 +22,9 @@ def free_port_pair() -> int:
                 continue
         return port
     raise RuntimeError("no two adjacent free ports")
+
+
+def default_sigint() -> None:
+    """``preexec_fn`` of a server a test stops with SIGINT, as a user's Ctrl-C: a shell without job control
+    starts its background jobs with SIGINT ignored, and the server would inherit that and never stop."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)

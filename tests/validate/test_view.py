@@ -17,7 +17,7 @@ from pipeline.config import default_config
 from pipeline.model.effects import make_effect
 from pipeline.validate.stage import validate_run
 from pipeline.validate.view import NO_DISPLAY, display_available, side_by_side_rrd
-from tests.validate.net import free_port_pair
+from tests.validate.net import default_sigint, free_port_pair
 from tests.validate.synthetic import synthetic_kinematics, synthetic_run
 
 PDR = str(Path(sys.executable).with_name("pdr"))      # the console command, as a user runs it
@@ -121,7 +121,7 @@ def test_web_serves_the_viewer_page_and_the_side_by_side_recording(processed, tm
     port = free_port_pair()
     proc = subprocess.Popen([PDR, "view", "--web", "--port", str(port),
                              "--processed", str(processed), "clean", "delayed"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=default_sigint)
     try:
         line = proc.stdout.readline()
         match = re.search(r"(http://127\.0\.0\.1:(\d+)/\?url=\S+)", line)

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.validate.net import free_port_pair
+from tests.validate.net import default_sigint, free_port_pair
 
 PDR = str(Path(sys.executable).with_name("pdr"))
 
@@ -64,7 +64,7 @@ def test_a_port_out_of_range_is_refused_in_one_line(rrd, port):
 @pytest.mark.slow
 def test_port_0_serves_the_viewer_and_the_recording_on_a_free_pair_it_prints(rrd):
     proc = subprocess.Popen([PDR, "view", "--web", "--port", "0", str(rrd)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=default_sigint)
     try:
         first, second = proc.stdout.readline(), proc.stdout.readline()
         match = re.search(r"(http://127\.0\.0\.1:(\d+)/\?url=\S+)", first)
