@@ -50,8 +50,9 @@ def timing(meas: Measurement) -> bytes:
 
 
 def settle_switches(meas: Measurement, nll) -> Measurement:
-    """Decide each ambiguous inferred switch (``ambiguous_switches``) by which timing the rig's
-    model replays better (``nll(measurement) -> float``), one at a time in time order."""
+    """Decide each ambiguous inferred switch (``ambiguous_switches``), then each ambiguous reversal on a lost
+    row (``ambiguous_lost_reversals``), by which timing the rig's model replays better
+    (``nll(measurement) -> float``), one at a time in time order."""
     for k in ambiguous_switches(meas):
         d = meas.dir
         options = []
@@ -78,18 +79,19 @@ def settle_switches(meas: Measurement, nll) -> Measurement:
             if value < best_nll:
                 best, best_nll = trial, value
         meas = best
+    current = nll(meas)
     for i in ambiguous_lost_reversals(meas):
         trial = replace(meas, lost_shifts=tuple(sorted(set(meas.lost_shifts) ^ {i})))
-        if nll(trial) < nll(meas):
-            meas = trial
+        if (value := nll(trial)) < current:
+            meas, current = trial, value
     return meas
 
 
 def settled(meas: Measurement, effects: tuple[Effect, ...]) -> Measurement:
-    """The ambiguous switches (inferred, and reversals on lost rows) settled under ``effects``, each timing judged by the pattern it
-    leaves in each signal about its own mean: a level the model misses (a sensor's offset, where a
-    constant torque rests the springs) moves both timings alike, and judged with it the timing went
-    whichever way the missing level leaned."""
+    """The ambiguous switches (inferred, and reversals on lost rows) settled under ``effects``, each timing
+    judged by the pattern it leaves in each signal about its own mean: a level the model misses (a sensor's
+    offset, where a constant torque rests the springs) moves both timings alike, and judged with it the
+    timing went whichever way the missing level leaned."""
     spec = meas.spec(effects)
     floor = noise_floor(meas)
 

@@ -129,8 +129,8 @@ class Measurement:
             self.cache.estimators[plant] = StartEstimator(plant, self.t, self.observed,
                                                      angle_offset=not self.angle_reference_known)
         estimator = self.cache.estimators[plant]
-        key = (plant, estimator.window(d, self.lost_shifts), spec.I0)
         shifted = self.lost_shifts
+        key = (plant, estimator.window(d, shifted), spec.I0)
         if key not in self.cache.starts:
             if self.angle_reference_known:
                 self.cache.starts[key] = estimator.start(d, spec.I0, shifted=shifted)

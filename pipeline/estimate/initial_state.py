@@ -304,8 +304,12 @@ class StartEstimator:
     def window(self, dir_log: np.ndarray, shifted: tuple[int, ...] = ()) -> bytes:
         """The part of a command sequence the estimate sees, with the lost rows' reversals moved in it (a cache
         key)."""
-        inside = [i for i in sorted(shifted) if i + 1 < self.p.n]
-        return np.asarray(dir_log[:self.p.n], dtype=np.int8).tobytes() + np.asarray(inside, dtype=np.int64).tobytes()
+        return (np.asarray(dir_log[:self.p.n], dtype=np.int8).tobytes()
+                + np.asarray(self._inside(shifted), dtype=np.int64).tobytes())
+
+    def _inside(self, shifted: tuple[int, ...]) -> tuple[int, ...]:
+        """The shifted gaps within the window (the others do not change the estimate, nor its cache key)."""
+        return tuple(i for i in sorted(shifted) if i + 1 < self.p.n)
 
     def start(self, dir_log: np.ndarray, I0: float = 0.0, offset: float | None = None,
               shifted: tuple[int, ...] = ()) -> Start:
@@ -320,7 +324,7 @@ class StartEstimator:
         p = self.p
         p.forget_runs()
         key = self.window(dir_log, shifted)
-        p.set_log(np.asarray(dir_log[:p.n], dtype=np.int8).copy(), tuple(i for i in sorted(shifted) if i + 1 < p.n))
+        p.set_log(np.asarray(dir_log[:p.n], dtype=np.int8).copy(), self._inside(shifted))
         if key not in self._base:
             self._base[key] = p.y - p.outputs(p.run((0.0, 0.0, 0.0), np.zeros(p.m, dtype=np.int8)), measured=False)
         p.I0 = float(I0)

@@ -145,6 +145,11 @@ def _gaps(t: np.ndarray) -> np.ndarray:
     return np.where((h > 1.5 * period) & (k <= MAX_LOST_ROWS), k, 0).astype(int)
 
 
+def _lost_instants(t: np.ndarray, i: int, m: int) -> np.ndarray:
+    """The ``m`` instants lost in the gap after sample ``i``, evenly spaced (the sketch's loop kept time)."""
+    return t[i] + (t[i + 1] - t[i]) * np.arange(1, m + 1) / (m + 1)
+
+
 def _reversal_gap(dir_log: np.ndarray, i: int) -> bool:
     """The logged commands either side of the gap after sample ``i`` differ: the sketch reversed in it or at
     the next logged sample (between two equal ones it held, as a reversal would need the other guard)."""
@@ -184,14 +189,13 @@ def lost_samples_filled(t: np.ndarray, dir_log: np.ndarray, angle: np.ndarray | 
     missing = _gaps(t)
     if not missing.any():
         return t, np.asarray(dir_log), np.arange(len(t))
-    h = np.diff(t)
     kept = np.concatenate([[0], np.cumsum(missing + 1)])
     t_full = np.empty(kept[-1] + 1)
     d_full = np.full(kept[-1] + 1, loop.UNKNOWN, dtype=np.int8)
     t_full[kept], d_full[kept] = t, dir_log
     for i in np.flatnonzero(missing):
         m = missing[i]
-        t_full[kept[i] + 1:kept[i + 1]] = t[i] + h[i] * np.arange(1, m + 1) / (m + 1)
+        t_full[kept[i] + 1:kept[i + 1]] = _lost_instants(t, i, m)
         before, after = int(dir_log[i]), int(dir_log[i + 1])
         if (before == after and before != loop.UNKNOWN) or before == 0:
             d_full[kept[i] + 1:kept[i + 1]] = before          # held (the motor off: as the loop holds it)
@@ -224,8 +228,7 @@ def lost_reversals_on_guard(t: np.ndarray, dir_log: np.ndarray, angle: np.ndarra
     for i in np.flatnonzero(missing):
         if not _reversal_gap(dir_log, i):
             continue
-        m = missing[i]
-        at = _angle_at(t, np.asarray(angle, dtype=float), i, t[i] + (t[i + 1] - t[i]) * np.arange(1, m + 1) / (m + 1))
+        at = _angle_at(t, np.asarray(angle, dtype=float), i, _lost_instants(t, i, missing[i]))
         if at is not None and np.any(np.abs(np.abs(at) - guard) <= band):
             out.append(int(i))
     return out
