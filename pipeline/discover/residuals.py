@@ -18,11 +18,13 @@ Two things live here:
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import Callable
 
 import numpy as np
 
 from pipeline.discover.measurement import Measurement
 from pipeline.estimate import Model, Target
+from pipeline.model.params import PlantSpec
 from pipeline.model.simulate import SimResult
 
 
@@ -214,10 +216,13 @@ def binned(meas: Measurement, sim: SimResult, floor: dict[str, float], n_bins: i
     return out
 
 
-def target_of(meas: Measurement) -> Target:
+def target_of(meas: Measurement, on_replay: Callable[[PlantSpec], None] | None = None) -> Target:
     """The recording as the estimation core sees it: a model's replay residuals (its start, commands
-    in flight and, after a reset, its counter zero solved for that model) and the noise floor."""
+    in flight and, after a reset, its counter zero solved for that model) and the noise floor;
+    ``on_replay`` is told each plant replayed (a caller counting its work)."""
     def of(model: Model) -> dict[str, np.ndarray]:
         spec = replace(meas.config, model=model.base).plant_spec(model.effects)
+        if on_replay is not None:
+            on_replay(spec)
         return residuals(meas, meas.replay(spec))
     return Target(name=meas.name, residuals=of, noise=noise_floor(meas))

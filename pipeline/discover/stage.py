@@ -108,7 +108,7 @@ def discover(kin: pd.DataFrame, config: RigConfig, name: str, after_reset: bool 
     meas = sel.meas
     check = None
     if not model_declared and (sel.effects or sel.verdict == "unexplained"):
-        check = check_with_base_free(meas, sel.effects, candidate_names(meas), policy)
+        check = check_with_base_free(meas, sel.effects, candidate_names(meas), policy, spent=sel.work)
     effects = sel.effects if check is None else check.kept
     base = meas.simulate_ways(meas.spec(), sel.command_before)
     final = meas.simulate_ways(meas.spec(effects), sel.command_after) if effects else base

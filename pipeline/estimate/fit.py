@@ -186,17 +186,19 @@ def _weighted(residual: Residual, segments: Sequence[slice], factors: np.ndarray
 @dataclass(frozen=True)
 class Steps:
     """How the optimizer steps: ``diff_step`` relative for its finite differences, ``x_scale`` each internal
-    coordinate's typical step (None: the priors' widths, else the values' sizes)."""
+    coordinate's typical step (None: the priors' widths, else the values' sizes), ``ftol`` where it
+    stops (a step gaining less than this share of the cost)."""
 
     diff_step: float = 1e-6
     x_scale: float | None = None
+    ftol: float = 1e-8
 
 
 def _solve(residual: Residual, unknowns: list[Unknown], x0: np.ndarray, bounds, max_nfev: int, steps: Steps):
     stacked = _stacked(residual, unknowns)
     if not unknowns:
         return x0, np.zeros((len(stacked(x0)), 0)), True, 1
-    sol = least_squares(stacked, x0, bounds=bounds, diff_step=steps.diff_step, max_nfev=max_nfev, method="trf",
+    sol = least_squares(stacked, x0, bounds=bounds, diff_step=steps.diff_step, max_nfev=max_nfev, method="trf", ftol=steps.ftol,
                         x_scale=_scales(unknowns, x0) if steps.x_scale is None else steps.x_scale)
     return sol.x, sol.jac, bool(sol.success), int(sol.nfev)
 

@@ -12,7 +12,7 @@ from typing import Callable
 
 import numpy as np
 
-from pipeline.estimate.fit import FAILED, FitResult, fit
+from pipeline.estimate.fit import FAILED, FitResult, Steps, fit
 from pipeline.estimate.unknowns import Model, Unknown
 
 
@@ -59,7 +59,7 @@ class Problem:
             return out if out.shape == (size,) and np.all(np.isfinite(out)) else np.full(size, FAILED)
         return f
 
-    def fit(self, max_nfev: int = 200, factors: np.ndarray | None = None) -> FitResult:
+    def fit(self, max_nfev: int = 200, factors: np.ndarray | None = None, steps: Steps = Steps()) -> FitResult:
         rows = self.rows()
         return fit(self.residual(rows[-1].stop if rows else 0), self.unknowns, max_nfev=max_nfev, segments=rows,
-                   factors=factors)
+                   factors=factors, steps=steps)

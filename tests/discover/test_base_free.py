@@ -51,6 +51,23 @@ def test_where_the_base_is_off_the_effect_the_search_missed_is_named_in_place_of
     assert "pdr calibrate" in check.hint
 
 
+def test_past_the_decision_budget_the_check_only_drops(hidden):
+    """The work budget bounds the check's forward steps, not its elimination: past it, the stand-in the
+    search chose is still dropped, nothing is offered in its place, and the answer says the budget ended
+    it and asks for a calibration."""
+    from dataclasses import replace as _replace
+
+    from pipeline.discover.base_free import base_free_text
+    from pipeline.discover.policy import DEFAULT_POLICY
+
+    policy = _replace(DEFAULT_POLICY, decision_work_budget=1_000_000)
+    check = check_with_base_free(hidden, (CATALOGUE["coulomb_friction"](Tc=0.002),), policy=policy,
+                                 spent=policy.decision_work_budget)
+    assert check.kept == () and check.added == () and check.dropped == ("coulomb_friction",)
+    assert check.stopped_for_time and check.work > policy.decision_work_budget
+    assert "pdr calibrate" in check.hint and "work budget" in base_free_text(check.to_json())
+
+
 def test_stand_ins_the_search_calls_an_explanation_are_not_named(tmp_path):
     """A clean recording of an undeclared rig off Table I (stiffer springs, more friction, another motor)
     that forward selection explains with springs, viscous friction and a driver drop: each stands in for
