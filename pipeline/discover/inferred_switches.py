@@ -5,7 +5,8 @@ again under the effects found (``search.select``).
   a switch whose measured angle lies on a guard (within half a count) may have come a sample later.
 - A reversal in a gap of rows lost over serial: the sketch's rule on the angle interpolated at the lost
   instant decides it (``simulate.lost_samples_filled``), and where that angle lies on a guard (within
-  half a count) it may be a sample off."""
+  half a count) it may be a sample off.
+- The motor's start in a gap of lost rows: at a lost instant or at the next logged sample."""
 
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ import numpy as np
 from pipeline.discover.measurement import Measurement
 from pipeline.discover.residuals import noise_floor, residuals
 from pipeline.model.effects import Effect
-from pipeline.model.simulate import lost_reversals_on_guard
+from pipeline.model.simulate import lost_reversals_on_guard, lost_starts
 
 
 def ambiguous_switches(meas: Measurement) -> list[int]:
@@ -33,11 +34,12 @@ def ambiguous_switches(meas: Measurement) -> list[int]:
 
 def ambiguous_lost_reversals(meas: Measurement) -> list[int]:
     """Logged samples after which a reversal in a gap of lost rows has its interpolated angle within half an
-    encoder count of a guard (``simulate.lost_reversals_on_guard``)."""
+    encoder count of a guard (``simulate.lost_reversals_on_guard``), or the motor started in a gap of lost
+    rows (``simulate.lost_starts``: no rule decides that instant)."""
     if meas.dir_source != "logged":
         return []
-    return lost_reversals_on_guard(meas.t, meas.dir, meas.theta, float(meas.config.controller.guard_rad),
-                                   np.pi / meas.config.encoder.counts_per_rev)
+    return sorted(lost_reversals_on_guard(meas.t, meas.dir, meas.theta, float(meas.config.controller.guard_rad),
+                                          np.pi / meas.config.encoder.counts_per_rev) + lost_starts(meas.t, meas.dir))
 
 
 def ambiguous(meas: Measurement) -> bool:

@@ -157,6 +157,21 @@ def _reversal_gap(dir_log: np.ndarray, i: int) -> bool:
     return before in (-1, 1) and after != before and after != loop.UNKNOWN
 
 
+def _start_gap(dir_log: np.ndarray, i: int) -> bool:
+    """The logged command goes from off to on across the gap after sample ``i``: the motor started at a lost
+    instant or at the next logged sample.  No rule of the sketch's decides that instant from the angle (its
+    start is a timer's or a button's), so the data must."""
+    return int(dir_log[i]) == 0 and int(dir_log[i + 1]) in (-1, 1)
+
+
+def lost_starts(t: np.ndarray, dir_log: np.ndarray) -> list[int]:
+    """Logged samples after which the motor started in a gap of lost rows (``_start_gap``)."""
+    t = np.asarray(t, dtype=float)
+    if len(t) < 3:
+        return []
+    return [int(i) for i in np.flatnonzero(_gaps(t)) if _start_gap(np.asarray(dir_log), int(i))]
+
+
 def _angle_at(t: np.ndarray, angle: np.ndarray, i: int, instants: np.ndarray) -> np.ndarray | None:
     """The measured angle at ``instants`` inside the gap after sample ``i``: the angle bends towards a guard
     (the motor is braking it), so a cubic through two logged samples each side, not a chord."""
@@ -182,7 +197,9 @@ def lost_samples_filled(t: np.ndarray, dir_log: np.ndarray, angle: np.ndarray | 
     on the model's angle.  A gap after a logged sample in ``shifted`` has its reversal one instant from
     where the rule put it (later, or at the last lost instant where the rule put it at the next logged
     sample): where the interpolated angle is within half a count of the guard, the rule may be a sample off
-    (``lost_reversals_on_guard``), and discovery settles which."""
+    (``lost_reversals_on_guard``), and discovery settles which.  A motor started in a gap (off before it, on
+    after) is started at the next logged sample, or, after a sample in ``shifted``, at the last lost instant
+    (``lost_starts``)."""
     t = np.asarray(t, dtype=float)
     if len(t) < 3:
         return t, np.asarray(dir_log), np.arange(len(t))
@@ -199,6 +216,8 @@ def lost_samples_filled(t: np.ndarray, dir_log: np.ndarray, angle: np.ndarray | 
         before, after = int(dir_log[i]), int(dir_log[i + 1])
         if (before == after and before != loop.UNKNOWN) or before == 0:
             d_full[kept[i] + 1:kept[i + 1]] = before          # held (the motor off: as the loop holds it)
+            if i in shifted and _start_gap(dir_log, i):
+                d_full[kept[i + 1] - 1] = after               # the motor started at the last lost instant
         elif angle is not None and before in (-1, 1):
             lost = t_full[kept[i] + 1:kept[i + 1]]
             at = _angle_at(t, angle, i, lost)

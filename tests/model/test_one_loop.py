@@ -153,3 +153,27 @@ def test_a_prepared_replay_under_another_command_is_that_command_simulated_alone
         prepared.under(log[:-1])
     with pytest.raises(ValueError, match="replay"):
         Prepared.of(spec, t, dir_log=log).under(log)        # a closed loop is not a replay
+
+
+def test_a_motor_started_in_a_gap_of_lost_rows_is_found_and_started_a_sample_earlier():
+    """Off before a gap, on after it: the motor started at the lost instant or at the next logged sample,
+    and no rule of the sketch's says which.  The gap is reported; by default the start is the next logged
+    sample's, and ``shifted`` starts it at the lost instant, which replays the rig exactly when it did."""
+    from pipeline.model.simulate import lost_starts, with_lost_samples
+
+    spec = default_config().plant_spec()
+    t = np.arange(80) * 0.05
+    d = np.zeros(len(t), dtype=np.int8)
+    d[10:] = 1
+    full = simulate(spec, t, dir_log=d, closed_loop=False)
+    keep = np.setdiff1d(np.arange(len(t)), [10, 50])                  # the start's row lost, and one later
+    args = (t[keep], d[keep], full.theta[keep], spec.guard_rad)
+    assert lost_starts(t[keep], d[keep]) == [9]                        # the gap after sample 9, not the held one
+    t_loop, rule, kept = with_lost_samples(*args)
+    _, moved, _ = with_lost_samples(*args, shifted=(9,))
+    assert rule[10] == 0 and moved[10] == 1
+    assert np.array_equal(np.delete(moved, 10), np.delete(rule, 10))
+    started_there = simulate(spec, t_loop, dir_log=moved, closed_loop=False)
+    np.testing.assert_allclose(started_there.theta[kept], full.theta[keep], rtol=0, atol=1e-12)
+    started_later = simulate(spec, t_loop, dir_log=rule, closed_loop=False)
+    assert np.max(np.abs(started_later.theta[kept] - full.theta[keep])) > 1e-3
