@@ -73,8 +73,8 @@ class DiscoveryPolicy:
     # on a rig whose [model] is not declared, the check with the base free (``base_free``) offers the
     # catalogue again only while the search's work and its own are within this; its first fit and
     # elimination, which can only drop names, always run.  Bounds an undeclared rig's whole decision
-    # (~0.5 us of CPU a unit); on used calibration seeds 11-16 (144 recordings) it ended one check's
-    # steps, its answer unchanged, and the decision's CPU max 7.3 s
+    # (~0.5 us of CPU a unit); on used calibration seeds 11-16 (144 recordings) it ended two checks'
+    # steps, their answers unchanged, and the decision's CPU max 7.2 s
     decision_work_budget: int = 12_000_000
     # the runner-up is reported as a near tie when its held-out evidence is within this many charges
     # of the winner's: tells a user the choice was close
