@@ -35,7 +35,7 @@ from pipeline.discover.policy import DEFAULT_POLICY, DiscoveryPolicy
 from pipeline.discover.residuals import noise_floor, target_of
 from pipeline.discover.criterion import beyond_zero_error, nameable
 from pipeline.discover.search import what_it_changes
-from pipeline.discover.candidates import START_RUN_COST, replay_cost
+from pipeline.discover.candidates import Evaluator
 from pipeline.estimate import FitResult, Model, Problem, Target, effect_unknowns
 from pipeline.estimate.fit import Steps
 from pipeline.model.effects import CATALOGUE, Effect
@@ -74,19 +74,16 @@ class BaseFreeCheck:
 
 
 class _Tally:
-    """The check's work in the search's unit (``candidates.replay_cost`` per replay, ``START_RUN_COST``
-    per simulation of a start estimate), so one budget bounds the search and the check together."""
+    """The check's work in the search's unit: its replays and start estimates counted by an ``Evaluator``
+    (``work``) that starts from the search's, so one budget bounds the search and the check together."""
 
     def __init__(self, meas: Measurement, spent: int) -> None:
-        self.meas, self._replayed, self._runs = meas, spent, meas.start_runs
-        self.target = target_of(meas, on_replay=self._count)
-
-    def _count(self, spec) -> None:
-        self._replayed += replay_cost(spec, self.meas.n)
+        self.counter = Evaluator(meas, floor={}, spent=spent)
+        self.target = target_of(meas, on_replay=self.counter.count_replay)
 
     @property
     def work(self) -> int:
-        return self._replayed + START_RUN_COST * (self.meas.start_runs - self._runs)
+        return self.counter.work
 
 
 def _fit(meas: Measurement, target: Target, effects: tuple[Effect, ...], base_free: bool, factors=None,

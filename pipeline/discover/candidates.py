@@ -72,7 +72,7 @@ class Evaluator:
         key = (replace(spec, I0=0.0), x0)
         if key not in self._cache:
             self.simulations += 1
-            self._replayed += replay_cost(spec, self.meas.n)
+            self.count_replay(spec)
             try:
                 self._cache[key] = self.meas.replay(key[0], x0, self.command(key[0], x0))
             except (RuntimeError, FloatingPointError, ValueError, PdrError) as err:
@@ -83,6 +83,10 @@ class Evaluator:
         if spec.I0 == 0.0:
             return base
         return replace(base, current_measured=base.current + spec.I0)
+
+    def count_replay(self, spec: PlantSpec) -> None:
+        """A whole replay of ``spec`` (``replay_cost``), counted in this evaluator's work."""
+        self._replayed += replay_cost(spec, self.meas.n)
 
     @property
     def work(self) -> int:

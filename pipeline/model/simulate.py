@@ -166,10 +166,10 @@ def _start_gap(dir_log: np.ndarray, i: int) -> bool:
 
 def lost_starts(t: np.ndarray, dir_log: np.ndarray) -> list[int]:
     """Logged samples after which the motor started in a gap of lost rows (``_start_gap``)."""
-    t = np.asarray(t, dtype=float)
+    t, d = np.asarray(t, dtype=float), np.asarray(dir_log)
     if len(t) < 3:
         return []
-    return [int(i) for i in np.flatnonzero(_gaps(t)) if _start_gap(np.asarray(dir_log), int(i))]
+    return [int(i) for i in np.flatnonzero(_gaps(t)) if _start_gap(d, int(i))]
 
 
 def _angle_at(t: np.ndarray, angle: np.ndarray, i: int, instants: np.ndarray) -> np.ndarray | None:
