@@ -382,8 +382,3 @@ class StartEstimator:
 def without_offset(spec: PlantSpec) -> PlantSpec:
     """The plant with its current-sensor offset removed (what ``StartEstimator`` simulates)."""
     return replace(spec, I0=0.0)
-
-
-def estimate_start(spec: PlantSpec, t: np.ndarray, dir_log: np.ndarray, observed: Observed) -> Start:
-    """x0, its covariance and the pre-log commands that best explain the first samples under ``spec``."""
-    return StartEstimator(without_offset(spec), t, observed).start(np.asarray(dir_log), spec.I0)

@@ -24,8 +24,9 @@ from pipeline.columns import column
 from pipeline.derive.energy import run_electrical_energy, run_energy
 from pipeline.model.effects import PlantSpec
 from pipeline.model.simulate import SimResult
-from pipeline.estimate.initial_state import Observed, estimate_start
+from pipeline.estimate.initial_state import Observed, StartEstimator, without_offset
 from pipeline.estimate.start import Start
+from pipeline.estimate.switch_timing import Timing, pattern_misfit, settle
 from pipeline.validate.metrics import signal_errors
 from pipeline.estimate.noise import angle_noise, sample_instants, signal_noise
 
@@ -61,15 +62,49 @@ def observed_signals(kin: pd.DataFrame) -> Observed:
     return out
 
 
-def initial_state(kin: pd.DataFrame, spec: PlantSpec) -> Start:
-    """x0 = [I, w, delta] at the first sample and the pre-log commands, estimated under ``spec``.
+def initial_state(kin: pd.DataFrame, spec: PlantSpec, timing: Timing | None = None) -> Start:
+    """x0 = [I, w, delta] at the first sample and the pre-log commands, estimated under ``spec`` (and the
+    switches' ``timing``, default the logged or inferred commands as the rule fills lost rows).
 
     No at-rest rule: a recording may open mid-motion, and one noisy first reading would
     persist for La/Ra = 7 s; the first seconds pin the start down (``initial_state.py``).
     Validation and discovery share this estimate, so their MSEs are the same numbers.
     """
-    return estimate_start(spec, sample_instants(column(kin, "t_s", dtype=float)), logged_dir(kin),
-                          observed_signals(kin))
+    timing = Timing(logged_dir(kin)) if timing is None else timing
+    return _estimator(kin, spec).start(timing.dir, spec.I0, shifted=timing.shifted)
+
+
+def _estimator(kin: pd.DataFrame, spec: PlantSpec) -> StartEstimator:
+    return StartEstimator(without_offset(spec), sample_instants(column(kin, "t_s", dtype=float)), observed_signals(kin))
+
+
+def settled_timing(kin: pd.DataFrame, spec: PlantSpec, half_count: float) -> Timing:
+    """The switches the data leave open (``switch_timing``: an inferred one on a guard, a reversal or the
+    motor's start in a gap of lost rows) settled by which timing ``spec`` replays better, as discovery
+    settles them: a nuisance of the recording, so the MSEs measure the model, not the rule's guess."""
+    timing = Timing(logged_dir(kin))
+    if "theta_rad" not in kin.columns:
+        return timing
+    t = sample_instants(column(kin, "t_s", dtype=float))
+    theta = column(kin, "theta_rad", dtype=float)
+    observed = observed_signals(kin)
+    measured = {"theta": theta, "current": observed["current"][0] if "current" in observed else None}
+    estimator = None
+
+    def misfit(tm: Timing) -> float:
+        nonlocal estimator
+        estimator = estimator or _estimator(kin, spec)
+        start = estimator.start(tm.dir, spec.I0, shifted=tm.shifted)
+        sim = start.simulate(spec, t, tm.dir, closed_loop=False, angle=theta, shifted=tm.shifted)
+        res = {"theta": theta - sim.theta}
+        if measured["current"] is not None:
+            res["current"] = measured["current"] - sim.current_measured
+        finite = np.logical_and.reduce([np.isfinite(m) for m in measured.values() if m is not None])
+        return pattern_misfit({s: r[finite] for s, r in res.items()}, {s: observed[s][1] for s in res})
+
+    inferred = "dir_inferred" in kin.columns and bool(kin["dir_inferred"].to_numpy(dtype=bool).any())
+    return settle(timing, t=t, theta=theta, guard=float(spec.guard_rad), half_count=half_count, inferred=inferred,
+                  misfit=misfit)
 
 
 def logged_dir(kin: pd.DataFrame) -> np.ndarray:
@@ -77,17 +112,30 @@ def logged_dir(kin: pd.DataFrame) -> np.ndarray:
     return column(kin, "dir", dtype=np.int8)
 
 
-def simulate_both(spec: PlantSpec, kin: pd.DataFrame, start: Start | None = None) -> dict[str, SimResult]:
-    """Closed loop and replay at the recording's own sample instants, from its estimated start
-    (only the ``possible_ways``: none without both the angle and dir)."""
+def timing_json(kin: pd.DataFrame, timing: Timing | None) -> dict | None:
+    """Where the replay's switches are a sample off the rule's (``validation.json``'s ``switch_timing``): the
+    samples whose inferred command moved, and the logged samples after whose lost rows a reversal or start did."""
+    if timing is None:
+        return None
+    t = column(kin, "t_s", dtype=float)
+    return {"inferred_moved_s": [float(t[k]) for k in np.flatnonzero(timing.dir != logged_dir(kin))],
+            "lost_rows_moved_after_s": [float(t[i]) for i in timing.shifted]}
+
+
+def simulate_both(spec: PlantSpec, kin: pd.DataFrame, start: Start | None = None,
+                  timing: Timing | None = None) -> dict[str, SimResult]:
+    """Closed loop and replay at the recording's own sample instants, from its estimated start, under the
+    switches' ``timing`` (default: the logged or inferred commands, lost rows filled by the sketch's rule);
+    only the ``possible_ways``: none without both the angle and dir."""
     ways = possible_ways(kin)
     if not ways:
         return {}
     t = sample_instants(column(kin, "t_s", dtype=float))
-    d = logged_dir(kin)
-    start = initial_state(kin, spec) if start is None else start
+    timing = Timing(logged_dir(kin)) if timing is None else timing
+    start = initial_state(kin, spec, timing) if start is None else start
     angle = column(kin, "theta_rad", dtype=float) if "theta_rad" in kin.columns else None
-    return {way: start.simulate(spec, t, d, closed_loop=way == "closed_loop", angle=angle) for way in ways}
+    return {way: start.simulate(spec, t, timing.dir, closed_loop=way == "closed_loop", angle=angle,
+                                shifted=timing.shifted) for way in ways}
 
 
 def switch_indices(d: np.ndarray) -> np.ndarray:

@@ -24,7 +24,8 @@ from pipeline.io.atomic import read_parquet, write_json, write_parquet
 from pipeline.model.effects import PlantSpec
 from pipeline.runs import RunPaths, ingest_segment, load_config
 from pipeline.derive.tables import schema_table
-from pipeline.validate.compare import comparison_table, compare, initial_state, possible_ways, simulate_both
+from pipeline.validate.compare import (comparison_table, compare, initial_state, possible_ways, settled_timing,
+                                      simulate_both, timing_json)
 
 ModelOverride = Path | str | RigConfig | PlantSpec | None
 
@@ -134,8 +135,10 @@ def validate_run(paths: RunPaths, model_override: ModelOverride = None, *, rrd: 
     spec, source = resolve_model(cfg, model_override)
     t1 = time.perf_counter()
     try:
-        start = initial_state(kin, spec) if possible_ways(kin) else None
-        sims = simulate_both(spec, kin, start)
+        ways = possible_ways(kin)
+        switches = settled_timing(kin, spec, np.pi / cfg.encoder.counts_per_rev) if "replay" in ways else None
+        start = initial_state(kin, spec, switches) if ways else None
+        sims = simulate_both(spec, kin, start, switches)
     except ValueError as err:
         raise PdrError(f"the model cannot be simulated: {err}", path=paths.root) from None
     t2 = time.perf_counter()
@@ -145,6 +148,7 @@ def validate_run(paths: RunPaths, model_override: ModelOverride = None, *, rrd: 
         "n_samples": int(len(kin)), "duration_s": float(kin["t_s"].iloc[-1] - kin["t_s"].iloc[0]),
         "dir_inferred": bool(kin["dir_inferred"].any()) if "dir_inferred" in kin.columns else False,
         "initial_state": start.to_json() if sims else None,
+        "switch_timing": timing_json(kin, switches),
         **result,
     })
     t3 = time.perf_counter()
