@@ -63,29 +63,26 @@ class Evaluator:
         self._start_runs = meas.start_runs   # the start estimates' simulations before this evaluator
         self.failures: list[str] = []
         self.commands: dict[PlantSpec, np.ndarray] = {}
-        self._onset: int | None = None         # the onset the last model's search ended on
+        self._onset_shift: int | None = None   # the shift the last model's onset search ended on
 
     def sim(self, effects: tuple[Effect, ...], start: Start | None = None) -> SimResult:
-        """The replay of the base plus ``effects`` under the command chosen for it (``command``) from
-        ``start``, by default the start estimated for that command."""
+        """The replay of the base plus ``effects`` from ``start``, by default the start estimated for it."""
         spec = self.meas.spec(effects)
-        plant = replace(spec, I0=0.0)
         try:
-            d = self.command(plant, spec.I0)
-            x0 = self.meas.x0(spec, d) if start is None else start     # estimated per model (the measurement caches it)
+            x0 = self.meas.x0(spec) if start is None else start     # estimated per model (the measurement caches it)
         except _SIMULATION_ERRORS as err:
             # a plant whose start the estimator cannot simulate (a chattering contact) is as bad as its replay
-            key = (plant, "no start")
+            key = (replace(spec, I0=0.0), "no start")
             if key not in self._cache:
-                self.failures.append(f"{plant}: start: {err}")
+                self.failures.append(f"{key[0]}: start: {err}")
                 self._cache[key] = _failed(self.meas.t)
             return self._cache[key]
-        key = (plant, x0)
+        key = (replace(spec, I0=0.0), x0)
         if key not in self._cache:
             self.simulations += 1
             self.count_replay(spec)
             try:
-                self._cache[key] = self.meas.run(x0, plant, d) if start is None else self.meas.replay(plant, x0, d)
+                self._cache[key] = self.meas.replay(key[0], x0, self.command(key[0], x0))
             except _SIMULATION_ERRORS as err:
                 # a parameter value the simulator cannot run counts as infinitely bad, not as a crash
                 self.failures.append(f"{key}: {err}")
@@ -102,11 +99,8 @@ class Evaluator:
     @property
     def work(self) -> int:
         """What the search has cost, in simulated samples: the searches before this evaluator, its replays,
-        and the start estimates of the models it replayed (each simulation of theirs costs what a replay of its
-        instants does, ``replay_cost``)."""
-        (runs, linear, event), (runs0, linear0, event0) = self.meas.start_runs, self._start_runs
-        return (self.spent + self._replayed + REPLAY_OVERHEAD * (runs - runs0) + (linear - linear0)
-                + round(EVENT_SAMPLE_COST * (event - event0)))
+        and the start estimates of the models it replayed (``START_RUN_COST`` per simulation of theirs)."""
+        return self.spent + self._replayed + START_RUN_COST * (self.meas.start_runs - self._start_runs)
 
     def use_command(self, spec: PlantSpec, command: np.ndarray | None) -> None:
         """Replay ``spec`` (without sensor offset) under ``command`` from now on (None: the chosen one)."""
@@ -116,56 +110,40 @@ class Evaluator:
             self.commands[spec] = command
         self._cache = {k: v for k, v in self._cache.items() if k[0] != spec}
 
-    def command(self, spec: PlantSpec, I0: float = 0.0) -> np.ndarray:
+    def command(self, spec: PlantSpec, x0: tuple[float, float, float]) -> np.ndarray:
         """The command sequence to replay: the logged one, or -- when the motor's start is only
-        inferred -- the onset (``Measurement.onset_candidates``) that fits this model best over the
-        first phase: for the first model, every candidate (on a grid of ``ONSET_GRID`` where there are more,
-        then downhill).  After a start from rest (a short first phase) each next model goes downhill from
-        the last one's onset; where the pinion moved from the first sample (the first phase is the whole
-        first drive) each round's models share the onset its base model chose (``choose_onset``).
+        inferred -- the start (within ``ONSET_SHIFTS`` samples) that fits this model best over
+        the first phase: every shift for the first model, then a downhill search from the last
+        model's (each shift costs a start estimate, Gauss-Newton for a Coulomb or backlash plant).
         Remembered per plant, so the final report uses the same one; ``use_command`` replaces it."""
-        candidates = self.meas.onset_candidates()
-        if not candidates:
+        k0 = self.meas.onset
+        if k0 is None:
             return self.commands.get(spec, self.meas.dir)     # one chosen on the whole run (start_refit)
         if spec not in self.commands:
-            if self._onset is None or self.meas.onset:
-                self._onset = self._best_onset(spec, I0, candidates, self._onset)
-            self.commands[spec] = self.meas.with_onset(self._onset)
+            m = min(k0 + ONSET_WINDOW, self.meas.n)
+            tried: dict[int, float] = {}
+
+            def nll_at(shift: int) -> float:
+                if shift not in tried:
+                    tried[shift] = self._onset_nll(spec, x0, self.meas.with_onset(k0 + shift), m)
+                return tried[shift]
+
+            if self._onset_shift is None:            # the first model: every shift
+                best = min(ONSET_SHIFTS, key=nll_at)
+            else:
+                # the next models differ a little: from where the last one's onset was, downhill
+                best = self._onset_shift
+                for step in (-1, 1):
+                    while best + step in ONSET_SHIFTS and nll_at(best + step) < nll_at(best):
+                        best += step
+            self._onset_shift = best
+            self.commands[spec] = self.meas.with_onset(k0 + best) if np.isfinite(nll_at(best)) else self.meas.dir
         return self.commands[spec]
 
-    def choose_onset(self, effects: tuple[Effect, ...]) -> bool:
-        """Where the pinion moved from the first sample: the onset chosen again under ``effects`` (downhill from
-        the last one), for the models compared on top of them; whether it moved."""
-        if self.meas.onset != 0 or self._onset is None:
-            return False
-        full = self.meas.spec(effects)
-        spec = replace(full, I0=0.0)
-        last = self._onset
-        self._onset = self._best_onset(spec, full.I0, self.meas.onset_candidates(), last)
-        self.use_command(spec, self.meas.with_onset(self._onset))
-        return self._onset != last
-
-    def _best_onset(self, spec: PlantSpec, I0: float, candidates: tuple[int, ...], start: int | None) -> int:
-        m = self.meas.onset_window
-        tried: dict[int, float] = {}
-        allowed = set(candidates)
-
-        def nll_at(k: int) -> float:
-            if k not in tried:
-                tried[k] = self._onset_nll(spec, I0, self.meas.with_onset(k), m)
-            return tried[k]
-
-        best = start if start is not None else min(candidates[::max(1, len(candidates) // ONSET_GRID)], key=nll_at)
-        for step in (-1, 1):                     # downhill
-            while best + step in allowed and nll_at(best + step) < nll_at(best):
-                best += step
-        return best if np.isfinite(nll_at(best)) else (self.meas.onset or 0)
-
-    def _onset_nll(self, spec: PlantSpec, I0: float, d: np.ndarray, m: int) -> float:
-        """The first phase's likelihood (``m`` samples) with the motor started as ``d`` says, from the start
-        estimated for it (under the sensor offset ``I0``)."""
+    def _onset_nll(self, spec: PlantSpec, x0, d: np.ndarray, m: int) -> float:
+        """The first phase's likelihood (``m`` samples) with the motor started as ``d`` says."""
         try:
-            sim = self.meas.run(self.meas.x0(replace(spec, I0=I0), d), spec, d, n=m)
+            sim = self.meas.replay(spec, x0, d, n=m)
         except _SIMULATION_ERRORS:
             return float("inf")
         self.simulations += 1
@@ -175,7 +153,8 @@ class Evaluator:
 
     def command_for(self, effects: tuple[Effect, ...]) -> np.ndarray:
         spec = self.meas.spec(effects)
-        return self.command(replace(spec, I0=0.0), spec.I0)
+        x0 = self.meas.x0(spec)
+        return self.command(replace(spec, I0=0.0), x0)
 
     def nll(self, sim: SimResult, mask: np.ndarray | None = None) -> float:
         """Concentrated Gaussian negative log-likelihood over the fitted signals (on ``mask``)."""
@@ -192,18 +171,21 @@ def _model_signals(sim: SimResult, meas: Measurement) -> list[np.ndarray]:
     return [sim.theta if s == "theta" else sim.current_measured for s in meas.signals]
 
 
-# The first model's onset search tries at most about this many candidates before going downhill: the
-# likelihood has one peak over the first phase, a few samples wide.
-ONSET_GRID = 16
+# A motor start inferred from the first motion can be late by a loop delay or by the time a
+# sticking pinion needs to break away (up to ~0.3 s for large Coulomb torques), or early by
+# a sample; the first phase (up to ONSET_WINDOW samples) decides.
+ONSET_SHIFTS = tuple(range(-8, 3))
+ONSET_WINDOW = 30
 
 # Discovery's budget is in work: what its simulations cost, counted, not timed, so the same on every machine
 # and under any load.  The unit is one sample of a linear plant's replay (~0.6 us of CPU).  Fitted to the
 # CPU of discovery on 66 randomised recordings (median error 6 %): a sample of an event-driven plant
-# (Coulomb friction, backlash: stick/slip and contact events located) costs 4/3 of it; a simulation besides
-# its samples (set-up, residuals, likelihood) 200.  A start estimate's simulations (its window's instants,
-# 2 s: 20 to 200 of them, ~20 simulations per start of an event-driven plant) are counted the same way.
+# (Coulomb friction, backlash: stick/slip and contact events located) costs 4/3 of it; a replay besides
+# its samples (set-up, residuals, likelihood) 200; one simulation of a start estimate (a few dozen
+# samples and its share of a Gauss-Newton step; ~20 of them per start of an event-driven plant) 260.
 EVENT_SAMPLE_COST = 4 / 3
 REPLAY_OVERHEAD = 200
+START_RUN_COST = 260
 
 # what a model the simulator cannot run scores: finite (Brent's method does arithmetic on it), huge
 FAILED_NLL = 1e12

@@ -7,7 +7,6 @@ from dataclasses import replace
 
 import numpy as np
 
-from pipeline.discover.candidates import Evaluator
 from pipeline.discover.measurement import Measurement
 from pipeline.discover.residuals import noise_floor, residuals
 from pipeline.estimate.switch_timing import Timing, inferred_on_guard, lost_on_guard, pattern_misfit, settle
@@ -43,20 +42,13 @@ def timing(meas: Measurement) -> bytes:
 
 
 def settled(meas: Measurement, effects: tuple[Effect, ...]) -> Measurement:
-    """The open switches settled under ``effects`` (``switch_timing.settle``, judged by ``pattern_misfit``),
-    each timing replayed with the motor started where ``effects`` start it (an inferred onset, a nuisance
-    of its own: ``Evaluator.command``)."""
+    """The open switches settled under ``effects`` (``switch_timing.settle``, judged by ``pattern_misfit``)."""
     spec = meas.spec(effects)
     floor = noise_floor(meas)
-    onset = None
-    if meas.onset is not None:
-        on = np.flatnonzero(Evaluator(meas, floor).command_for(effects) != 0)
-        onset = int(on[0]) if len(on) else None
 
     def misfit(tm: Timing) -> float:
         m = replace(meas, dir=tm.dir, lost_shifts=tm.shifted)
-        return pattern_misfit(residuals(m, m.replay(spec, dir_log=None if onset is None else m.with_onset(onset))),
-                              floor)
+        return pattern_misfit(residuals(m, m.replay(spec)), floor)
 
     if meas.dir_source not in ("logged", "inferred"):
         return meas

@@ -69,44 +69,13 @@ class Measurement:
 
     @property
     def onset(self) -> int | None:
-        """Index of the first motor-on sample when it is only inferred (no logged command): the derive
-        stage dates it from the first motion from rest, which a loop delay or a sticking pinion postpone;
-        0 where the pinion moves from the first sample, which a motor already on explains, and so does an
-        unpowered pinion swung by a load before a later start.  Fitting treats it as unknown
-        (``onset_candidates``)."""
+        """Index of the first motor-on sample when it is only inferred (no logged command and a
+        motor-off lead-in): the derive stage dates it from the first motion, which a loop delay
+        or a sticking pinion postpone, so fitting treats it as unknown (``ONSET_SHIFTS``)."""
         if self.dir_source != "inferred":
             return None
         nz = np.flatnonzero(self.dir != 0)
-        return int(nz[0]) if len(nz) else None
-
-    def onset_candidates(self) -> tuple[int, ...]:
-        """Where the motor may have started: within ``ONSET_SHIFTS`` of a start dated from rest; where the
-        pinion moved from the first sample, any sample before the first reversal (the motor drove the
-        pinion to that guard, from whenever it started)."""
-        k0 = self.onset
-        if k0 is None:
-            return ()
-        if k0 > 0:
-            return self.onsets_around(k0)
-        return tuple(range(0, self.first_reversal))
-
-    def onsets_around(self, k: int) -> tuple[int, ...]:
-        """The onsets within ``ONSET_SHIFTS`` of ``k`` (``with_onset`` starts the motor at sample 1 at the earliest
-        where the derive stage dated it from rest)."""
-        lowest = 1 if self.onset else 0
-        return tuple(sorted({int(np.clip(k + s, lowest, self.n - 1)) for s in ONSET_SHIFTS}))
-
-    @property
-    def first_reversal(self) -> int:
-        rev = np.flatnonzero((self.dir[1:] == -self.dir[:-1]) & (self.dir[1:] != 0))
-        return int(rev[0]) + 1 if len(rev) else self.n
-
-    @property
-    def onset_window(self) -> int:
-        """The samples an onset is judged on: the first phase, ``ONSET_WINDOW`` past the latest candidate
-        dated from rest, or past the first reversal."""
-        k0 = self.onset or 0
-        return min((k0 if k0 > 0 else self.first_reversal) + ONSET_WINDOW, self.n)
+        return int(nz[0]) if len(nz) and nz[0] > 0 else None
 
     def with_onset(self, k: int) -> np.ndarray:
         """The command sequence with the motor switched on at sample ``k`` instead."""
@@ -114,7 +83,7 @@ class Measurement:
         d = self.dir.copy()
         if k0 is None or k == k0:
             return d
-        k = int(np.clip(k, 1 if k0 > 0 else 0, self.n - 1))
+        k = int(np.clip(k, 1, self.n - 1))
         if k < k0:
             d[k:k0] = d[k0]
         else:
@@ -147,12 +116,9 @@ class Measurement:
         return observed_signals(self.kinematics)
 
     @property
-    def start_runs(self) -> tuple[int, int, int]:
-        """Simulations run for start estimates so far, by this measurement and the copies sharing its estimators:
-        (simulations, instants of linear plants, instants of event-driven ones)."""
-        estimators = self.cache.estimators.values()
-        return (sum(e.runs for e in estimators), sum(e.samples for e in estimators if e.linear),
-                sum(e.samples for e in estimators if not e.linear))
+    def start_runs(self) -> int:
+        """Simulations run for start estimates so far, by this measurement and the copies sharing its estimators."""
+        return sum(e.runs for e in self.cache.estimators.values())
 
     def x0(self, spec: PlantSpec, dir_log: np.ndarray | None = None) -> Start:
         """The start (x0 with its uncertainty, the pre-log commands) under ``spec``, estimated
@@ -284,12 +250,6 @@ class Measurement:
         return start.simulate(spec, t[:m], dir_log[:m], closed_loop=closed_loop, angle=self.theta[:m],
                               shifted=self.lost_shifts)
 
-
-# A motor start inferred from the first motion can be late by a loop delay or by the time a
-# sticking pinion needs to break away (up to ~0.3 s for large Coulomb torques), or early by
-# a sample; the first phase (up to ONSET_WINDOW samples past it) decides.
-ONSET_SHIFTS = tuple(range(-8, 3))
-ONSET_WINDOW = 30
 
 # Discovery fits the first MAX_SAMPLES samples of a longer recording: each candidate costs a few
 # dozen replays, and the 10 s budget holds for about this many (100 s of a 50 ms sketch).

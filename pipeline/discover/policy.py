@@ -8,9 +8,9 @@ never reported (docs/BENCHMARKS.md).
 
 Not here, because they are not decisions (they change how much a search costs or how finely it
 looks, not what counts as evidence): the work unit (``candidates.EVENT_SAMPLE_COST``,
-``REPLAY_OVERHEAD``), the simulation and sample grid (``measurement.MAX_SAMPLES``,
+``REPLAY_OVERHEAD``, ``START_RUN_COST``), the simulation and sample grid (``measurement.MAX_SAMPLES``,
 ``longer.REFIT_SAMPLES``, each effect's scan grid ``Param.scan``), the nuisances' search range
-(``measurement.ONSET_SHIFTS``/``ONSET_WINDOW``, ``candidates.ONSET_GRID``, ``start_refit.STEPS``), and the questions across runs
+(``candidates.ONSET_SHIFTS``/``ONSET_WINDOW``, ``start_refit.STEPS``), and the questions across runs
 (``pooled``) and with the base free (``base_free``).
 """
 

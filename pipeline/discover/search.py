@@ -40,11 +40,6 @@ from pipeline.discover.residuals import noise_floor
 from pipeline.discover.start_refit import held_start_sensitivity, hold_offset_of, refine_start
 from pipeline.model.effects import CATALOGUE, Effect
 
-# The motor's onset and the model's parameters are fitted in turn at most this many times per model (each
-# turn: an onset search and a joint refit, a cost bound): the onset moves by a sample or two once the
-# parameters have, and the parameters a little once it has.
-ONSET_TURNS = 2
-
 
 @dataclass
 class Candidate:
@@ -197,7 +192,6 @@ def _forward(ev: Evaluator, names: tuple[str, ...], folds, policy: DiscoveryPoli
         remaining = [n for n in names if n not in {e.name for e in effects}]
         if not remaining:
             break
-        effects = _onset_chosen(ev, effects)
         tried, screened = _round(ev, effects, remaining, folds, len(effects) + 1, policy)
         rounds.append([*tried, *screened])
         adopt = next((c for c in tried if c.clears), None)
@@ -206,16 +200,6 @@ def _forward(ev: Evaluator, names: tuple[str, ...], folds, policy: DiscoveryPoli
         adopt.accepted = True
         effects = adopt.fit.effects
     return _Run(effects=effects, rounds=rounds)
-
-
-def _onset_chosen(ev: Evaluator, effects: tuple[Effect, ...]) -> tuple[Effect, ...]:
-    """Where the pinion moved from the first sample, the motor's onset chosen again under ``effects`` and, where
-    it moved, their parameters refitted under it (the two are fitted in turn, as a nuisance and a model)."""
-    for _ in range(ONSET_TURNS):
-        if not ev.choose_onset(effects) or not effects:
-            break
-        effects = joint_fit(ev, effects)
-    return effects
 
 
 def _prune(ev: Evaluator, effects: tuple[Effect, ...], folds, policy: DiscoveryPolicy,
@@ -294,7 +278,6 @@ def _search(meas: Measurement, names: tuple[str, ...], policy: DiscoveryPolicy, 
     best = plain if len(runs) == 1 else min(runs, key=lambda r: criterion(ev, r.effects, folds, taus, policy))
     hold_offset_of(ev, best.effects)
     effects, rounds = _stepwise(ev, names, folds, policy, taus, best)
-    effects = _onset_chosen(ev, effects)
     adopted = {e.name for r in runs for e in r.effects} | {c.fit.name for rnd in rounds for c in rnd
                                                            if getattr(c, "accepted", False)}
     refine_start(ev, effects)

@@ -21,7 +21,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from pipeline.discover.candidates import Evaluator
+from pipeline.discover.candidates import ONSET_SHIFTS, Evaluator
 from pipeline.discover.joint import Sensitivity, sensitivity
 from pipeline.discover.residuals import residuals
 from pipeline.errors import PdrError
@@ -50,7 +50,7 @@ def _replayed_nll(ev: Evaluator, effects: tuple[Effect, ...], command: np.ndarra
 
 def _command_on_the_whole_run(ev: Evaluator, effects: tuple[Effect, ...]) -> np.ndarray:
     """The command to replay under ``effects``: the logged one; or, with an inferred onset, the onset
-    (``Measurement.onsets_around`` the chosen one) that replays the whole recording best under ``effects``.  After a reset the
+    (``ONSET_SHIFTS``) that replays the whole recording best under ``effects``.  After a reset the
     counter's offset is fitted with each onset (either bends the other) and the best one's held."""
     meas = ev.meas
     full = meas.spec(effects)
@@ -66,9 +66,9 @@ def _command_on_the_whole_run(ev: Evaluator, effects: tuple[Effect, ...]) -> np.
         return _replayed_nll(ev, effects, d, start), offset
 
     best, (best_nll, best_offset) = chosen, trial(chosen)
-    for k in meas.onsets_around(k0) if k0 is not None else ():
-        d = meas.with_onset(k)
-        if k != k0 and (tried := trial(d))[0] < best_nll:
+    for shift in ONSET_SHIFTS if k0 is not None else ():
+        d = began.with_onset(k0 + shift)
+        if shift != 0 and (tried := trial(d))[0] < best_nll:
             best, (best_nll, best_offset) = d, tried
     if best_offset is not None:
         meas.hold_offset(full, best_offset)

@@ -74,7 +74,6 @@ class _Problem:
         self.n = n = _window(t)
         self.spec = spec
         self.runs = 0                                   # simulations run (a caller's budget counts them)
-        self.samples = 0                                # ... and the instants they simulated
         self.I0 = 0.0
         self.offset = 0.0                               # rad: the counter's zero off the springs' rest
         self.lead = lead_offsets(float(spec.Td), float(spec.period_s))
@@ -115,7 +114,6 @@ class _Problem:
         key = np.asarray(z, dtype=float).tobytes() + log.tobytes()
         if key not in self._runs:
             self.runs += 1
-            self.samples += len(self.t)
             self._runs[key] = self._replay(log).run(tuple(z))
         return self._runs[key]
 
@@ -302,15 +300,6 @@ class StartEstimator:
     def runs(self) -> int:
         """Simulations this estimator has run, its unit and pulse responses included."""
         return self.p.runs
-
-    @property
-    def samples(self) -> int:
-        """The instants those simulations stepped through (the window's, a few dozen to a thousand)."""
-        return self.p.samples
-
-    @property
-    def linear(self) -> bool:
-        return self.p.spec.is_linear
 
     def window(self, dir_log: np.ndarray, shifted: tuple[int, ...] = ()) -> bytes:
         """The part of a command sequence the estimate sees, with the lost rows' reversals moved in it (a cache

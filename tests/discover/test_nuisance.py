@@ -346,22 +346,3 @@ def test_after_a_reset_the_counter_offset_is_estimated_again_under_the_model_fou
     were eliminated again and the verdict was ``unexplained``.  Estimated again under the model the
     rounds found, the three are kept and the angle is within its floor."""
     _named_right(*_randomised(28, tmp_path, after_reset=True))
-
-
-def test_a_load_torque_that_swung_the_unpowered_pinion_before_an_inferred_start(tmp_path):
-    """No logged command, and the capture opens while the motor is still off: a load torque swings the
-    unpowered pinion towards where it rests, so the pinion moves from the first sample and the derive
-    stage dates the motor's start there.  The start is a nuisance anywhere before the first reversal;
-    chosen with the model, the torque explains the recording (before: ``unexplained``, the torque named
-    with a start 0.9 s early absorbed into the rest)."""
-    from pipeline.rig.serial import Artefacts
-
-    torque = make_effect("constant_load_torque", {"Tl": -1.0e-3})
-    kin, cfg, truth = rig_case((torque,), pre_roll_s=1.2, open_s=0.3, artefacts=Artefacts(dir_column=False),
-                               work=tmp_path)
-    assert kin["dir_inferred"].all() and kin["dir"].iloc[0] != 0 and truth["dir"].iloc[0] == 0
-    d = discover(kin, cfg, "swung")
-    assert d.verdict == "explained" and list(_found(d)) == ["constant_load_torque"]
-    assert _found(d)["constant_load_torque"] == pytest.approx(-1.0e-3, rel=0.05)
-    started = int((d.selection.command_after != 0).argmax())
-    assert abs(started - int((truth["dir"].to_numpy() != 0).argmax())) <= 1
