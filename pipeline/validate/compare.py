@@ -78,33 +78,31 @@ def _estimator(kin: pd.DataFrame, spec: PlantSpec) -> StartEstimator:
     return StartEstimator(without_offset(spec), sample_instants(column(kin, "t_s", dtype=float)), observed_signals(kin))
 
 
-def settled_timing(kin: pd.DataFrame, spec: PlantSpec, half_count: float) -> Timing:
+def settled_timing(kin: pd.DataFrame, spec: PlantSpec, half_count: float) -> tuple[Timing, Start]:
     """The switches the data leave open (``switch_timing``: an inferred one on a guard, a reversal or the
     motor's start in a gap of lost rows) settled by which timing ``spec`` replays better, as discovery
-    settles them: a nuisance of the recording, so the MSEs measure the model, not the rule's guess."""
+    settles them: a nuisance of the recording, so the MSEs measure the model, not the rule's guess.
+    Returns the timing and the start estimated under it (one estimator for every timing tried)."""
     timing = Timing(logged_dir(kin))
+    estimator = _estimator(kin, spec)
     if "theta_rad" not in kin.columns:
-        return timing
+        return timing, estimator.start(timing.dir, spec.I0)
     t = sample_instants(column(kin, "t_s", dtype=float))
     theta = column(kin, "theta_rad", dtype=float)
     observed = observed_signals(kin)
-    measured = {"theta": theta, "current": observed["current"][0] if "current" in observed else None}
-    estimator = None
+    finite = np.logical_and.reduce([np.isfinite(y) for y, _ in observed.values()])
 
     def misfit(tm: Timing) -> float:
-        nonlocal estimator
-        estimator = estimator or _estimator(kin, spec)
         start = estimator.start(tm.dir, spec.I0, shifted=tm.shifted)
         sim = start.simulate(spec, t, tm.dir, closed_loop=False, angle=theta, shifted=tm.shifted)
-        res = {"theta": theta - sim.theta}
-        if measured["current"] is not None:
-            res["current"] = measured["current"] - sim.current_measured
-        finite = np.logical_and.reduce([np.isfinite(m) for m in measured.values() if m is not None])
-        return pattern_misfit({s: r[finite] for s, r in res.items()}, {s: observed[s][1] for s in res})
+        model = {"theta": sim.theta, "current": sim.current_measured}
+        return pattern_misfit({s: (y - model[s])[finite] for s, (y, _) in observed.items()},
+                              {s: var for s, (_, var) in observed.items()})
 
     inferred = "dir_inferred" in kin.columns and bool(kin["dir_inferred"].to_numpy(dtype=bool).any())
-    return settle(timing, t=t, theta=theta, guard=float(spec.guard_rad), half_count=half_count, inferred=inferred,
-                  misfit=misfit)
+    timing = settle(timing, t=t, theta=theta, guard=float(spec.guard_rad), half_count=half_count, inferred=inferred,
+                    misfit=misfit)
+    return timing, estimator.start(timing.dir, spec.I0, shifted=timing.shifted)
 
 
 def logged_dir(kin: pd.DataFrame) -> np.ndarray:

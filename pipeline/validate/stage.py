@@ -136,8 +136,11 @@ def validate_run(paths: RunPaths, model_override: ModelOverride = None, *, rrd: 
     t1 = time.perf_counter()
     try:
         ways = possible_ways(kin)
-        switches = settled_timing(kin, spec, np.pi / cfg.encoder.counts_per_rev) if "replay" in ways else None
-        start = initial_state(kin, spec, switches) if ways else None
+        switches, start = None, None
+        if "replay" in ways:
+            switches, start = settled_timing(kin, spec, np.pi / cfg.encoder.counts_per_rev)
+        elif ways:
+            start = initial_state(kin, spec)
         sims = simulate_both(spec, kin, start, switches)
     except ValueError as err:
         raise PdrError(f"the model cannot be simulated: {err}", path=paths.root) from None

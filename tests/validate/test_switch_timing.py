@@ -10,7 +10,7 @@ import pandas as pd
 from pipeline.config import default_config
 from pipeline.estimate.switch_timing import Timing, settle
 from pipeline.model.simulate import simulate
-from pipeline.validate.compare import settled_timing, simulate_both
+from pipeline.validate.compare import initial_state, settled_timing, simulate_both
 from pipeline.validate.stage import validate_run
 from tests.validate.synthetic import AMPS_PER_STEP, COUNTS_PER_REV, synthetic_run
 
@@ -37,9 +37,10 @@ def test_a_motor_started_on_a_lost_row_is_replayed_from_the_lost_instant(tmp_pat
     kin = _started_after(10).drop(index=10).reset_index(drop=True)        # the start's row lost
     spec = CFG.plant_spec()
     rule = simulate_both(spec, kin)["replay"]
-    timing = settled_timing(kin, spec, HALF)
+    timing, start = settled_timing(kin, spec, HALF)
     assert timing.shifted == (9,)
-    settled = simulate_both(spec, kin, timing=timing)["replay"]
+    settled = simulate_both(spec, kin, start, timing)["replay"]
+    assert start == initial_state(kin, spec, timing)                # the start estimated under that timing
     mse = lambda sim: float(np.mean((sim.theta - kin["theta_rad"]) ** 2))   # noqa: E731
     assert mse(settled) < COUNT ** 2 < mse(rule)
     paths = synthetic_run(tmp_path / "processed", kin=kin, cfg=CFG)
@@ -52,7 +53,7 @@ def test_a_motor_started_on_a_lost_row_is_replayed_from_the_lost_instant(tmp_pat
 def test_a_row_lost_where_the_command_held_moves_nothing():
     kin = _started_after(10).drop(index=200).reset_index(drop=True)
     assert kin["dir"][199] == kin["dir"][200] != 0
-    assert settled_timing(kin, CFG.plant_spec(), HALF) == Timing(kin["dir"].to_numpy())
+    assert settled_timing(kin, CFG.plant_spec(), HALF)[0] == Timing(kin["dir"].to_numpy())
 
 
 def test_an_inferred_switch_on_a_guard_moves_only_where_the_replay_is_better():
