@@ -10,10 +10,10 @@ not clear a charge (``room``).  Where the rounds leave more than the clock's tic
 run from each, and the model with the best criterion (held-out likelihood less charges, one set of
 autocorrelation times for all) is kept, because the first pick among near-twins (a softer spring and a
 heavier rack both slow the oscillation; viscous friction for a delay and a driver drop together) is made
-before the partners are known.  Then each effect the others made redundant (its gain, with them
-refitted, no longer clears its charge) is dropped, and where one was, the rounds run again from what is
-left (stepwise selection, each step kept only where the criterion improves): the room a stand-in held
-goes to what it stood in for.  After a board reset the counter's zero, a nuisance
+before the partners are known.  Then each effect the others made redundant (refitted with them, it
+falls below a nameable size, or its gain no longer clears its charge) is dropped, and where one was, the
+rounds run again from what is left (stepwise selection, each step kept only where the criterion
+improves): the room a stand-in held goes to what it stood in for.  After a board reset the counter's zero, a nuisance
 held from the base model's fit through the rounds, is first estimated again under the model found
 (``start_refit.hold_offset_of``), so the elimination and the verdict judge every model at one offset.
 
@@ -202,10 +202,18 @@ def _forward(ev: Evaluator, names: tuple[str, ...], folds, policy: DiscoveryPoli
     return _Run(effects=effects, rounds=rounds)
 
 
+def _size_share(effect: Effect) -> float:
+    return max(abs(effect.parameters[p.name] - p.absent) / abs(p.typical - p.absent) for p in effect.PARAMS)
+
+
 def _prune(ev: Evaluator, effects: tuple[Effect, ...], folds, policy: DiscoveryPolicy,
            taus: dict[str, float]) -> tuple[Effect, ...]:
-    """Backward elimination by the same criterion: an effect whose held-out gain, the others refitted
-    without it, no longer clears its charge is dropped (the weakest first)."""
+    """Backward elimination by the same checks a candidate is adopted by: an effect the others, refitted
+    with it, leave below a nameable size (or within a zero's error) is dropped, the smallest first; then
+    one whose held-out gain, the others refitted without it, no longer clears its charge (the weakest first)."""
+    while small := [e for e in effects if not (nameable(e, policy) and beyond_zero_error(e, ev.meas, ev.floor, policy))]:
+        drop = min(small, key=_size_share)
+        effects = joint_fit(ev, tuple(e for e in effects if e is not drop))
     while len(effects) > 1:
         full = heldout_nll(ev, effects, folds, taus)
         trials = []

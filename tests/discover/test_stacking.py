@@ -131,6 +131,13 @@ def test_a_sensor_offset_left_out_for_a_stand_in_is_named_once_the_stand_in_is_d
                                                             "spring_stiffness"}, tmp_path)
 
 
+def test_a_stand_in_its_partners_leave_below_a_nameable_size_is_dropped_and_the_effect_it_hid_named(tmp_path):
+    """Randomised draw 53 of seed 21: a 0.066 rad backlash and a 1.12 V driver drop.  Round one adopts a
+    viscous friction, the drop joins it, and refitted beside the drop the friction falls to 7 % of its
+    typical size, below what is named; dropped, it leaves room for the backlash."""
+    _assert_named_as_pdr_discover_reads_it(21, 53, {"backlash", "driver_voltage_drop"}, tmp_path)
+
+
 def _assert_named_as_pdr_discover_reads_it(seed: int, index: int, names: set[str], work) -> None:
     """The draw as ``pdr discover`` reads it: every hidden effect named (``names``), none else, the verdict
     ``explained``, and each value within 5 % of the truth and inside its interval."""
