@@ -4,8 +4,8 @@ timing gives, the same way for validation and discovery.
 - A command inferred from the guards (no logged ``dir``): a switch whose measured angle lies on a guard
   (within half a count) may have come a sample later, or earlier.
 - A reversal in a gap of rows lost over serial: the sketch's rule on the angle interpolated at the lost
-  instants decides it (``simulate.lost_samples_filled``); where that angle lies on a guard within half a
-  count, the rule may be a sample off.
+  instants decides it (``simulate.lost_samples_filled``); where that angle lies on a guard within the
+  error half a count in each logged angle carries into the interpolation, the rule may be a sample off.
 - The motor's start in a gap of lost rows: at the last lost instant or at the next logged sample; no rule
   on the angle decides it (a timer's or a button's).
 
@@ -48,8 +48,9 @@ def inferred_on_guard(dir_inferred: np.ndarray, theta: np.ndarray, guard: float,
 
 def lost_on_guard(t: np.ndarray, dir_logged: np.ndarray, theta: np.ndarray, guard: float,
                   half_count: float) -> list[int]:
-    """Logged samples after which a reversal in a gap of lost rows has its interpolated angle within half
-    a count of a guard, or the motor started in a gap of lost rows."""
+    """Logged samples after which a reversal in a gap of lost rows has its interpolated angle within the
+    error half a count in each logged angle carries into it of a guard, or the motor started in a gap of
+    lost rows."""
     return sorted(lost_reversals_on_guard(t, dir_logged, theta, guard, half_count) + lost_starts(t, dir_logged))
 
 
@@ -72,22 +73,27 @@ def _alternative(d: np.ndarray, theta: np.ndarray, k: int) -> np.ndarray | None:
 def settle(timing: Timing, *, t: np.ndarray, theta: np.ndarray, guard: float, half_count: float, inferred: bool,
            misfit: Callable[[Timing], float]) -> Timing:
     """Each open switch decided by which timing the model replays better (``misfit``, lower is better), one
-    at a time in time order: the inferred switches on a guard, then the lost rows' reversals and starts."""
+    at a time in time order (the inferred switches on a guard, then the lost rows' reversals and starts),
+    pass after pass until none moves: one switch a sample off leaves a slow transient that can outweigh
+    what moving an earlier one gains, so that one is judged again once the later ones are settled."""
     current = None
-    for k in inferred_on_guard(timing.dir, theta, guard, half_count) if inferred else ():
-        alt = _alternative(timing.dir, theta, k)
-        if alt is None:
-            continue
-        current = misfit(timing) if current is None else current
-        trial = Timing(alt, timing.shifted)
-        if (value := misfit(trial)) < current:
-            timing, current = trial, value
-    for i in () if inferred else lost_on_guard(t, timing.dir, theta, guard, half_count):
-        current = misfit(timing) if current is None else current
-        trial = Timing(timing.dir, tuple(sorted(set(timing.shifted) ^ {i})))
-        if (value := misfit(trial)) < current:
-            timing, current = trial, value
-    return timing
+    while True:
+        before = timing
+        for k in inferred_on_guard(timing.dir, theta, guard, half_count) if inferred else ():
+            alt = _alternative(timing.dir, theta, k)
+            if alt is None:
+                continue
+            current = misfit(timing) if current is None else current
+            trial = Timing(alt, timing.shifted)
+            if (value := misfit(trial)) < current:
+                timing, current = trial, value
+        for i in () if inferred else lost_on_guard(t, timing.dir, theta, guard, half_count):
+            current = misfit(timing) if current is None else current
+            trial = Timing(timing.dir, tuple(sorted(set(timing.shifted) ^ {i})))
+            if (value := misfit(trial)) < current:
+                timing, current = trial, value
+        if timing == before:
+            return timing
 
 
 def pattern_misfit(res: dict[str, np.ndarray], floor: dict[str, float]) -> float:

@@ -196,8 +196,8 @@ def lost_samples_filled(t: np.ndarray, dir_log: np.ndarray, angle: np.ndarray | 
     model's parameters; without it, an ``UNKNOWN`` command, which the simulation's controller decides
     on the model's angle.  A gap after a logged sample in ``shifted`` has its reversal one instant from
     where the rule put it (later, or at the last lost instant where the rule put it at the next logged
-    sample): where the interpolated angle is within half a count of the guard, the rule may be a sample off
-    (``lost_reversals_on_guard``), and discovery settles which.  A motor started in a gap (off before it, on
+    sample): where the interpolated angle is within the logged angles' rounding error of the guard, the
+    rule may be a sample off (``lost_reversals_on_guard``), and discovery settles which.  A motor started in a gap (off before it, on
     after) is started at the next logged sample, or, after a sample in ``shifted``, at the last lost instant
     (``lost_starts``)."""
     t = np.asarray(t, dtype=float)
@@ -235,11 +235,23 @@ def lost_samples_filled(t: np.ndarray, dir_log: np.ndarray, angle: np.ndarray | 
     return t_full, d_full, kept
 
 
+def _rounding_gain(t: np.ndarray, angle: np.ndarray, i: int, instants: np.ndarray) -> np.ndarray:
+    """How far ``_angle_at``'s interpolation can move when each logged angle it passes through moves by one:
+    the sum of the magnitudes of its Lagrange weights at each instant (5/3 for one lost row, 2 for two)."""
+    near = np.arange(max(i - 1, 0), min(i + 3, len(t)))
+    x = t[near[np.isfinite(angle[near])]]
+    weights = [np.prod([(instants - x[k]) / (x[j] - x[k]) for k in range(len(x)) if k != j], axis=0)
+               for j in range(len(x))]
+    return np.sum(np.abs(weights), axis=0)
+
+
 def lost_reversals_on_guard(t: np.ndarray, dir_log: np.ndarray, angle: np.ndarray, guard: float,
                             band: float) -> list[int]:
     """Logged samples after which a reversal falls in a gap of lost rows with the interpolated angle at one
-    of its lost instants within ``band`` of a guard: the sketch's rule on it may be a sample off."""
+    of its lost instants within the error ``band`` (each logged angle's) carries into it of a guard: the
+    sketch's rule on it may be a sample off."""
     t = np.asarray(t, dtype=float)
+    angle = np.asarray(angle, dtype=float)
     if len(t) < 3:
         return []
     missing = _gaps(t)
@@ -247,8 +259,9 @@ def lost_reversals_on_guard(t: np.ndarray, dir_log: np.ndarray, angle: np.ndarra
     for i in np.flatnonzero(missing):
         if not _reversal_gap(dir_log, i):
             continue
-        at = _angle_at(t, np.asarray(angle, dtype=float), i, _lost_instants(t, i, missing[i]))
-        if at is not None and np.any(np.abs(np.abs(at) - guard) <= band):
+        instants = _lost_instants(t, i, missing[i])
+        at = _angle_at(t, angle, i, instants)
+        if at is not None and np.any(np.abs(np.abs(at) - guard) <= band * _rounding_gain(t, angle, i, instants)):
             out.append(int(i))
     return out
 

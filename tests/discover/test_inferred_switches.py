@@ -89,3 +89,32 @@ def test_a_motor_started_on_a_lost_row_is_settled_with_the_model(tmp_path):
     assert draw.conventions["dir"] and lost_starts(meas.t, meas.dir)
     assert meas.lost_shifts                                 # started at the lost instant
     _assert_explained_within_a_fifth(draw, doc)
+
+
+def _discovered_draw(seed: int, index: int, work) -> tuple:
+    draw = randomised_setup(np.random.default_rng([seed, index]))
+    write_recording(make_recording(draw.setup), work / "raw", "r")
+    return (draw, *discover_run(ingest_and_derive(work / "raw" / "r.csv", work / "processed")[0]))
+
+
+@pytest.mark.slow
+@pytest.mark.long
+def test_a_clean_recording_whose_inferred_switches_are_all_a_sample_early_is_none(tmp_path):
+    """A clean randomised draw without its command, an 80 ms sketch: four inferred switches on a guard, each
+    a sample early.  Moving the first alone replays worse while the later ones are off; judged again
+    once they have moved, it moves too, and the recording is at its noise floor (before: ``unexplained``)."""
+    draw, _, doc = _discovered_draw(22, 193, tmp_path)
+    assert draw.label == "clean" and not draw.conventions["dir"]
+    assert doc["verdict"] == "none" and doc["effects"] == []
+
+
+@pytest.mark.slow
+@pytest.mark.long
+def test_a_reversal_on_a_lost_row_within_the_interpolations_error_of_the_guard_is_settled(tmp_path):
+    """A clean randomised draw with its command logged: the angle interpolated at a lost row lies a count
+    beyond the guard (the truth a fraction of a count inside it), so the rule reversed there, a sample
+    early.  Within the error the logged angles' rounding carries into the interpolation, the reversal is
+    open, and settled a sample later the recording is at its noise floor (before: ``unexplained``)."""
+    draw, d, doc = _discovered_draw(22, 185, tmp_path)
+    assert draw.label == "clean" and draw.conventions["dir"] and d.selection.meas.lost_shifts
+    assert doc["verdict"] == "none" and doc["effects"] == []

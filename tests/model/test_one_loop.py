@@ -82,6 +82,25 @@ def test_a_lost_reversal_on_the_guard_is_found_and_shifted_a_sample():
     assert np.array_equal(with_lost_samples(*args, shifted=(held,))[1], rule)
 
 
+def test_a_lost_reversal_is_open_within_the_error_the_logged_angles_carry_into_the_interpolation():
+    """The angle at a lost instant is interpolated through four logged ones, each off by up to ``band``
+    (a count's rounding): mid-way through one lost row that moves it by up to 5/3 of ``band``, so a
+    reversal is open while the interpolated angle is within that of the guard, and only then."""
+    from pipeline.model.simulate import _angle_at, _lost_instants, lost_reversals_on_guard
+
+    spec = default_config().plant_spec()
+    t = np.arange(400) * 0.05
+    full = simulate(spec, t)
+    switch = int(np.flatnonzero(np.diff(full.dir) != 0)[2]) + 1
+    keep = np.setdiff1d(np.arange(len(t)), [switch])
+    args = (t[keep], full.dir[keep], full.theta[keep], spec.guard_rad)
+    gap = int(np.searchsorted(keep, switch)) - 1
+    at = _angle_at(t[keep], full.theta[keep], gap, _lost_instants(t[keep], gap, 1))
+    off = abs(abs(float(at[0])) - spec.guard_rad)
+    assert lost_reversals_on_guard(*args, band=off / 1.6) == [gap]
+    assert lost_reversals_on_guard(*args, band=off / 1.7) == []
+
+
 def test_without_gaps_the_instants_are_the_logged_ones():
     from pipeline.model.simulate import with_lost_samples
 

@@ -67,3 +67,20 @@ def test_an_inferred_switch_on_a_guard_moves_only_where_the_replay_is_better():
     kept = settle(Timing(d), t=np.arange(8.0), theta=theta, guard=1.0, half_count=0.01, inferred=True,
                   misfit=lambda tm: float(np.sum(tm.dir != d)))
     assert kept.dir.tolist() == d.tolist()
+
+
+def test_an_earlier_switch_is_judged_again_once_a_later_one_has_moved():
+    """Two switches on a guard, both a sample early.  Moving the first alone replays worse while the second
+    is still off (its transient outweighs the gain); once the second has moved, the first is judged again."""
+    theta = np.array([0.0, 0.5, 1.0, 0.5, 0.0, -0.5, -1.0, -0.5, 0.0])
+    d = np.array([1, 1, -1, -1, -1, -1, 1, 1, 1], dtype=np.int8)
+    truth = np.array([1, 1, 1, -1, -1, -1, -1, 1, 1], dtype=np.int8)
+
+    def misfit(tm: Timing) -> float:
+        first_right, second_right = tm.dir[2] == truth[2], tm.dir[6] == truth[6]
+        return {(False, False): 2.0, (True, False): 3.0, (False, True): 1.0, (True, True): 0.0}[
+            (bool(first_right), bool(second_right))]
+
+    moved = settle(Timing(d), t=np.arange(9.0), theta=theta, guard=1.0, half_count=0.01, inferred=True,
+                   misfit=misfit)
+    assert moved.dir.tolist() == truth.tolist()
