@@ -13,9 +13,10 @@ heavier rack both slow the oscillation; viscous friction for a delay and a drive
 before the partners are known.  Then each effect the others made redundant (refitted with them, it
 falls below a nameable size, or its gain no longer clears its charge) is dropped, and where one was, the
 rounds run again from what is left (stepwise selection, each step kept only where the criterion
-improves): the room a stand-in held goes to what it stood in for.  After a board reset the counter's zero, a nuisance
-held from the base model's fit through the rounds, is first estimated again under the model found
-(``start_refit.hold_offset_of``), so the elimination and the verdict judge every model at one offset.
+improves): the room a stand-in held goes to what it stood in for.  After a board reset the counter's
+zero, a nuisance held from the base model's fit through the rounds, is first estimated again under the
+model found (``start_refit.hold_offset_of``), so the elimination and the verdict judge every model at one
+offset.
 
 The verdict.  ``none`` when nothing is adopted and the recording is at its noise floor;
 ``explained`` when effects are adopted and what is left is within ``policy.structure_floors``
@@ -211,7 +212,10 @@ def _prune(ev: Evaluator, effects: tuple[Effect, ...], folds, policy: DiscoveryP
     """Backward elimination by the same checks a candidate is adopted by: an effect the others, refitted
     with it, leave below a nameable size (or within a zero's error) is dropped, the smallest first; then
     one whose held-out gain, the others refitted without it, no longer clears its charge (the weakest first)."""
-    while small := [e for e in effects if not (nameable(e, policy) and beyond_zero_error(e, ev.meas, ev.floor, policy))]:
+    def named(e: Effect) -> bool:
+        return nameable(e, policy) and beyond_zero_error(e, ev.meas, ev.floor, policy)
+
+    while small := [e for e in effects if not named(e)]:
         drop = min(small, key=_size_share)
         effects = joint_fit(ev, tuple(e for e in effects if e is not drop))
     while len(effects) > 1:

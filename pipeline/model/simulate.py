@@ -172,11 +172,16 @@ def lost_starts(t: np.ndarray, dir_log: np.ndarray) -> list[int]:
     return [int(i) for i in np.flatnonzero(_gaps(t)) if _start_gap(d, int(i))]
 
 
+def _around_gap(t: np.ndarray, angle: np.ndarray, i: int) -> np.ndarray:
+    """The logged samples the angle in the gap after sample ``i`` is interpolated through: two each side."""
+    near = np.arange(max(i - 1, 0), min(i + 3, len(t)))
+    return near[np.isfinite(angle[near])]
+
+
 def _angle_at(t: np.ndarray, angle: np.ndarray, i: int, instants: np.ndarray) -> np.ndarray | None:
     """The measured angle at ``instants`` inside the gap after sample ``i``: the angle bends towards a guard
     (the motor is braking it), so a cubic through two logged samples each side, not a chord."""
-    near = np.arange(max(i - 1, 0), min(i + 3, len(t)))
-    near = near[np.isfinite(angle[near])]
+    near = _around_gap(t, angle, i)
     if i not in near or i + 1 not in near:
         return None
     fit = np.polyfit(t[near] - t[i], angle[near], len(near) - 1)
@@ -197,9 +202,9 @@ def lost_samples_filled(t: np.ndarray, dir_log: np.ndarray, angle: np.ndarray | 
     on the model's angle.  A gap after a logged sample in ``shifted`` has its reversal one instant from
     where the rule put it (later, or at the last lost instant where the rule put it at the next logged
     sample): where the interpolated angle is within the logged angles' rounding error of the guard, the
-    rule may be a sample off (``lost_reversals_on_guard``), and discovery settles which.  A motor started in a gap (off before it, on
-    after) is started at the next logged sample, or, after a sample in ``shifted``, at the last lost instant
-    (``lost_starts``)."""
+    rule may be a sample off (``lost_reversals_on_guard``), and discovery settles which.  A motor started
+    in a gap (off before it, on after) is started at the next logged sample, or, after a sample in
+    ``shifted``, at the last lost instant (``lost_starts``)."""
     t = np.asarray(t, dtype=float)
     if len(t) < 3:
         return t, np.asarray(dir_log), np.arange(len(t))
@@ -238,8 +243,7 @@ def lost_samples_filled(t: np.ndarray, dir_log: np.ndarray, angle: np.ndarray | 
 def _rounding_gain(t: np.ndarray, angle: np.ndarray, i: int, instants: np.ndarray) -> np.ndarray:
     """How far ``_angle_at``'s interpolation can move when each logged angle it passes through moves by one:
     the sum of the magnitudes of its Lagrange weights at each instant (5/3 for one lost row, 2 for two)."""
-    near = np.arange(max(i - 1, 0), min(i + 3, len(t)))
-    x = t[near[np.isfinite(angle[near])]]
+    x = t[_around_gap(t, angle, i)]
     weights = [np.prod([(instants - x[k]) / (x[j] - x[k]) for k in range(len(x)) if k != j], axis=0)
                for j in range(len(x))]
     return np.sum(np.abs(weights), axis=0)
