@@ -39,23 +39,23 @@ def test_a_repeated_line_keeps_one_row_and_the_recording_is_processed(workspace)
     assert (processed / "dup" / "validation.json").is_file()
 
 
-def test_an_encoder_glitch_is_quarantined_with_its_line():
-    clean = ingest_recording_bytes(good_csv(0))
-    glitched = ingest_recording_bytes(with_count_glitch(good_csv(0), 60))
+def test_an_encoder_glitch_is_quarantined_with_its_line(tmp_path):
+    clean = ingest_recording_bytes(good_csv(0), tmp=tmp_path / "clean")
+    glitched = ingest_recording_bytes(with_count_glitch(good_csv(0), 60), tmp=tmp_path / "glitched")
     q = glitched.report["quarantined"]
     assert [x["line"] for x in q] == [62] and q[0]["reason"].startswith("encoder jump")
     sig, ref = glitched.tables["rec"], clean.tables["rec"]
     assert sig["counts"].tolist() == ref[ref["line"] != 62]["counts"].tolist()
 
 
-def test_a_count_beyond_64_bits_and_a_step_that_stays_are_named_with_their_lines():
+def test_a_count_beyond_64_bits_and_a_step_that_stays_are_named_with_their_lines(tmp_path):
     header, body = rows(good_csv(0))
     t, _counts, *rest = body[70].split(b",")
     huge = header + b"".join(body[:70] + [b",".join([t, b"9223372036854775807", *rest])] + body[71:])
-    result = ingest_recording_bytes(huge)
+    result = ingest_recording_bytes(huge, tmp=tmp_path / "huge")
     assert [x["line"] for x in result.report["quarantined"]] == [72]
     stays = header + b"".join(body[:80] + [_shifted(line, 100_000) for line in body[80:]])
-    result = ingest_recording_bytes(stays)
+    result = ingest_recording_bytes(stays, tmp=tmp_path / "stays")
     assert result.report["rows"]["quarantined"] == 0
     assert any("1 encoder jump(s) faster than the declared motor can turn" in d and "line 82 (+99"
                in d for d in result.report["defects"]), result.report["defects"]
@@ -67,9 +67,11 @@ def _shifted(line: bytes, by: int) -> bytes:
 
 
 def ingest_recording_bytes(data: bytes, toml: str | None = None, tmp=None):
-    import tempfile
+    """Ingest ``data`` as ``rec.csv`` in the folder ``tmp`` (a test's own ``tmp_path``: nothing is left
+    behind in the system's temporary folder)."""
     from pathlib import Path
-    folder = Path(tmp or tempfile.mkdtemp(prefix="pdr-hostile-"))
+    folder = Path(tmp)
+    folder.mkdir(parents=True, exist_ok=True)
     (folder / "rec.csv").write_bytes(data)
     if toml is not None:
         (folder / "rec.toml").write_text(toml, encoding="utf-8")
