@@ -17,11 +17,17 @@ pytestmark = pytest.mark.cluster
 
 @pytest.fixture(scope="module")
 def cluster():
+    """Two worker processes on localhost.  A connection to a worker that has died waits dask's connect
+    timeout (30 s by default) before the task is given up on; on localhost a live peer answers at once,
+    so 5 s here (the scheduler and client in this process, the workers through their environment)."""
+    import dask
     from distributed import LocalCluster
 
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
-                      dashboard_address=None) as lc:
-        yield lc
+    with pytest.MonkeyPatch.context() as mp, dask.config.set({"distributed.comm.timeouts.connect": "5s"}):
+        mp.setenv("DASK_DISTRIBUTED__COMM__TIMEOUTS__CONNECT", "5s")
+        with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                          dashboard_address=None) as lc:
+            yield lc
 
 
 def test_cluster_run_writes_what_a_local_run_writes(cluster, tmp_path, capsys):
