@@ -90,6 +90,7 @@ def test_stand_ins_the_search_calls_an_explanation_are_not_named(tmp_path):
         assert "pdr calibrate" in text and "stood in for the base" in text, text
 
 
+@pytest.mark.long       # a whole discovery with the base-free check, in a subprocess (~18 s)
 def test_what_was_found_beside_an_off_base_is_not_adopted(hidden_csv, tmp_path):
     """``--adopt`` would write effects valued beside a free base into a TOML whose base is Table I's: it
     answers, draws its report, writes nothing into the TOML and exits 2 saying to calibrate first."""
