@@ -102,15 +102,23 @@ class Evaluator:
         and the start estimates of the models it replayed (``START_RUN_COST`` per simulation of theirs)."""
         return self.spent + self._replayed + START_RUN_COST * (self.meas.start_runs - self._start_runs)
 
+    def use_command(self, spec: PlantSpec, command: np.ndarray | None) -> None:
+        """Replay ``spec`` (without sensor offset) under ``command`` from now on (None: the chosen one)."""
+        if command is None:
+            self.commands.pop(spec, None)
+        else:
+            self.commands[spec] = command
+        self._cache = {k: v for k, v in self._cache.items() if k[0] != spec}
+
     def command(self, spec: PlantSpec, x0: tuple[float, float, float]) -> np.ndarray:
         """The command sequence to replay: the logged one, or -- when the motor's start is only
         inferred -- the start (within ``ONSET_SHIFTS`` samples) that fits this model best over
         the first phase: every shift for the first model, then a downhill search from the last
         model's (each shift costs a start estimate, Gauss-Newton for a Coulomb or backlash plant).
-        Remembered per plant, so the final report uses the same one."""
+        Remembered per plant, so the final report uses the same one; ``use_command`` replaces it."""
         k0 = self.meas.onset
         if k0 is None:
-            return self.meas.dir
+            return self.commands.get(spec, self.meas.dir)     # one chosen on the whole run (start_refit)
         if spec not in self.commands:
             m = min(k0 + ONSET_WINDOW, self.meas.n)
             tried: dict[int, float] = {}

@@ -7,15 +7,13 @@ parameter of every effect together lives here (an effect may have several).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
 from pipeline.discover.residuals import residuals
-from pipeline.errors import PdrError
 from pipeline.estimate import autocorrelation_time
 from pipeline.estimate.fit import Steps, fit
-from pipeline.estimate.initial_state import STATE_SCALES
 from pipeline.estimate.unknowns import effect_unknowns
 from pipeline.model.effects import Effect, Param
 
@@ -81,35 +79,6 @@ def sensitivity(ev, effects: tuple[Effect, ...], replayed=None) -> Sensitivity:
             r1 = replayed(moved(v2))
         jac.append({s: (r1[s] - r0[s]) / (v2 - v) for s in r0})
     return Sensitivity(r0=r0, jac=jac)
-
-
-# the start's step for its columns in ``held_start_sensitivity`` (a fraction of each state's typical size)
-START_STEP = 1e-3
-
-
-def held_start_sensitivity(ev, effects: tuple[Effect, ...]) -> Sensitivity:
-    """The final model's sensitivity, for its intervals: each parameter moved with the start held, and the
-    start's three states as columns of their own, so the intervals come from the information matrix of all
-    the unknowns together, marginal over the start (a nuisance), as a joint fit's covariance is."""
-    meas = ev.meas
-    command = ev.command_for(effects)
-    start = meas.x0(meas.spec(effects), command)
-    z0 = np.array(start.x0 if start.z is None else start.z, dtype=float)
-
-    def replayed(effs: tuple[Effect, ...], z: np.ndarray = z0) -> dict[str, np.ndarray]:
-        spec = meas.spec(effs)
-        try:
-            sim = meas.run(start.with_z(z), replace(spec, I0=0.0), command)
-        except (RuntimeError, FloatingPointError, ValueError, PdrError):    # as the Evaluator scores it
-            return {s: np.full(meas.n, np.nan) for s in meas.signals}
-        return residuals(meas, replace(sim, current_measured=sim.current + spec.I0))
-
-    sens = sensitivity(ev, effects, replayed)
-    for i in range(3):
-        h = START_STEP * STATE_SCALES[i]
-        r1 = replayed(effects, z0 + h * np.eye(3)[i])
-        sens.jac.append({s: (r1[s] - sens.r0[s]) / h for s in sens.r0})
-    return sens
 
 
 def gauss_newton(r0: dict[str, np.ndarray], jac: list[dict[str, np.ndarray]],

@@ -20,11 +20,12 @@ import pandas as pd
 
 from pipeline.config import RigConfig
 from pipeline.discover.candidates import Evaluator
-from pipeline.discover.joint import effect_intervals, held_start_sensitivity, joint_fit
+from pipeline.discover.joint import effect_intervals, joint_fit
 from pipeline.discover.measurement import MAX_SAMPLES, measurement_from_kinematics
 from pipeline.discover.residuals import noise_floor
 from pipeline.discover.criterion import nameable
 from pipeline.discover.search import Selection, excess
+from pipeline.discover.start_refit import held_start_sensitivity, refine_start
 
 REFIT_SAMPLES = 2 * MAX_SAMPLES
 
@@ -44,9 +45,11 @@ def refit_on_more_samples(sel: Selection, kin: pd.DataFrame, config: RigConfig, 
     if effects == sel.effects or not all(nameable(e, sel.policy) for e in effects):
         return replace(sel, work=sel.work + ev.work)
     on_window = Evaluator(window, sel.floor)
+    refine_start(on_window, effects)
     left = excess(on_window, effects)
     if max(left.values()) > sel.policy.structure_floors:
         return replace(sel, work=sel.work + ev.work + on_window.work)
+    refine_start(ev, effects)
     spans = effect_intervals(held_start_sensitivity(ev, effects), effects)
     return replace(sel, effects=effects, intervals=spans, excess_after=left,
                    command_after=on_window.command_for(effects), work=sel.work + ev.work + on_window.work,

@@ -137,7 +137,8 @@ class Measurement:
             elif self.cache.offsets:
                 # the offset is the counter's, one per segment: estimated under the first model asked
                 # (the base), then held, as the angle residual is taken about its own mean anyway
-                # (re-estimating it for every candidate's plant tripled each start's cost)
+                # (re-estimating it for every candidate's plant tripled each start's cost), and fitted
+                # again under the final model (``discover.start_refit``)
                 self.cache.starts[key] = estimator.start(d, spec.I0, offset=self.cache.offsets["segment"],
                                                          shifted=shifted)
             else:
@@ -182,6 +183,39 @@ class Measurement:
             return None
         solution = np.linalg.lstsq(A[ok], r[ok], rcond=None)[0]
         return float(solution[3]) if np.isfinite(solution[3]) else None
+
+    @property
+    def held_offset(self) -> float | None:
+        """After a reset: the counter's offset the starts are estimated with (None before one is)."""
+        return self.cache.offsets.get("segment")
+
+    def segment_offset(self, spec: PlantSpec, dir_log: np.ndarray) -> float | None:
+        """After a reset, the counter's offset that replays the whole segment best under ``spec`` and
+        ``dir_log`` (a model that lacks an effect, as the base does, bends it); None otherwise."""
+        if self.angle_reference_known:
+            return None
+        return self._segment_offset(without_offset(spec), spec.I0, self.x0(spec, dir_log), dir_log)
+
+    def start_with_offset(self, spec: PlantSpec, dir_log: np.ndarray, offset: float) -> Start:
+        """The start under ``spec`` and ``dir_log`` with the counter's ``offset`` (not remembered)."""
+        self.x0(spec, dir_log)
+        return self.cache.estimators[without_offset(spec)].start(dir_log, spec.I0, offset=offset,
+                                                                 shifted=self.lost_shifts)
+
+    def hold_offset(self, spec: PlantSpec | None, offset: float) -> None:
+        """Hold the counter's ``offset``; the starts under ``spec``'s plant (None: every plant's) are
+        estimated again with it."""
+        self.cache.offsets["segment"] = offset
+        plant = None if spec is None else without_offset(spec)
+        for key in [k for k in self.cache.starts if plant is None or k[0] == plant]:
+            del self.cache.starts[key]
+
+    def pin_start(self, spec: PlantSpec, dir_log: np.ndarray, start: Start) -> None:
+        """Use ``start`` for ``spec`` under ``dir_log`` from now on (a start refined on more than the
+        first seconds: ``discover.start_refit``)."""
+        self.x0(spec, dir_log)
+        plant = without_offset(spec)
+        self.cache.starts[(plant, self.cache.estimators[plant].window(dir_log, self.lost_shifts), spec.I0)] = start
 
     def simulate_ways(self, spec: PlantSpec, dir_log: np.ndarray) -> dict[str, SimResult]:
         """Closed loop and replay at the recording's own instants, from its start (validation's two ways)."""

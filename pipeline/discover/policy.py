@@ -10,7 +10,7 @@ Not here, because they are not decisions (they change how much a search costs or
 looks, not what counts as evidence): the work unit (``candidates.EVENT_SAMPLE_COST``,
 ``REPLAY_OVERHEAD``, ``START_RUN_COST``), the simulation and sample grid (``measurement.MAX_SAMPLES``,
 ``longer.REFIT_SAMPLES``, each effect's scan grid ``Param.scan``), the nuisances' search range
-(``candidates.ONSET_SHIFTS``/``ONSET_WINDOW``), and the questions across runs
+(``candidates.ONSET_SHIFTS``/``ONSET_WINDOW``, ``start_refit.STEPS``), and the questions across runs
 (``pooled``) and with the base free (``base_free``).
 """
 

@@ -14,8 +14,9 @@ before the partners are known.  Then each effect the others made redundant (refi
 falls below a nameable size, or its gain no longer clears its charge) is dropped, and where one was, the
 rounds run again from what is left (stepwise selection, each step kept only where the criterion
 improves): the room a stand-in held goes to what it stood in for.  After a board reset the counter's
-zero is a nuisance estimated under the base model and held for every model compared, so the rounds, the
-elimination and the verdict judge every model at one offset.
+zero, a nuisance held from the base model's fit through the rounds, is first estimated again under the
+model found (``start_refit.hold_offset_of``), so the elimination and the verdict judge every model at one
+offset.
 
 The verdict.  ``none`` when nothing is adopted and the recording is at its noise floor;
 ``explained`` when effects are adopted and what is left is within ``policy.structure_floors``
@@ -32,11 +33,12 @@ import numpy as np
 from pipeline.discover.candidates import Evaluator, Fit, fit_candidate, folds_by_cycle, scan
 from pipeline.discover.criterion import (beyond_zero_error, charge, criterion, evidence, heldout_nll, nameable,
                                         residual_taus, room, structure_share)
-from pipeline.discover.joint import effect_intervals, held_start_sensitivity, joint_fit, sensitivity
+from pipeline.discover.joint import effect_intervals, joint_fit, sensitivity
 from pipeline.discover.inferred_switches import ambiguous, settled, timing
 from pipeline.discover.measurement import Measurement
 from pipeline.discover.policy import DEFAULT_POLICY, DiscoveryPolicy
 from pipeline.discover.residuals import noise_floor
+from pipeline.discover.start_refit import held_start_sensitivity, hold_offset_of, refine_start
 from pipeline.model.effects import CATALOGUE, Effect
 
 
@@ -286,12 +288,15 @@ def _search(meas: Measurement, names: tuple[str, ...], policy: DiscoveryPolicy, 
     # one likelihood for every model compared: the residual correlation the plain run leaves
     taus = residual_taus(ev, plain.effects)
     best = plain if len(runs) == 1 else min(runs, key=lambda r: criterion(ev, r.effects, folds, taus, policy))
+    hold_offset_of(ev, best.effects)
     effects, rounds = _stepwise(ev, names, folds, policy, taus, best)
     adopted = {e.name for r in runs for e in r.effects} | {c.fit.name for rnd in rounds for c in rnd
                                                            if getattr(c, "accepted", False)}
+    refine_start(ev, effects)
     ex_after = excess(ev, effects)
     if unreadable := [e for e in effects if _zero_beside_structure(e, ex_after, policy)]:
         effects = joint_fit(ev, tuple(e for e in effects if e not in unreadable))
+        refine_start(ev, effects)
         ex_after = excess(ev, effects)
     structured = max(ex_after.values()) > policy.structure_floors
     verdict = "unexplained" if structured else "explained" if effects else "none"
