@@ -156,10 +156,11 @@ class Evaluator:
         x0 = self.meas.x0(spec)
         return self.command(replace(spec, I0=0.0), x0)
 
-    def nll(self, sim: SimResult, mask: np.ndarray | None = None) -> float:
-        """Concentrated Gaussian negative log-likelihood over the fitted signals (on ``mask``)."""
+    def nll(self, sim: SimResult, mask: np.ndarray | None = None, taus: dict[str, float] | None = None) -> float:
+        """Concentrated Gaussian negative log-likelihood over the fitted signals (on ``mask``); with ``taus``,
+        each signal's in independent samples (over its residual's autocorrelation time)."""
         res = residuals(self.meas, sim)
-        return _nll_of(self, res if mask is None else {s: r[mask] for s, r in res.items()})
+        return _nll_of(self, res if mask is None else {s: r[mask] for s, r in res.items()}, taus)
 
     def mse(self, sim: SimResult, mask: np.ndarray | None = None) -> dict[str, float]:
         return {s: float(np.mean((r if mask is None else r[mask]) ** 2))
@@ -236,9 +237,11 @@ def value_of(e: Effect) -> float:
     return e.value
 
 
-def _nll_of(ev: Evaluator, r: dict[str, np.ndarray]) -> float:
-    """sum_s n_s/2 log(mean(r_s^2)); a thousandth of the noise floor keeps the log finite on noiseless data."""
-    total = sum(0.5 * len(x) * np.log(np.mean(x * x) + 1e-3 * ev.floor[s]) for s, x in r.items())
+def _nll_of(ev: Evaluator, r: dict[str, np.ndarray], taus: dict[str, float] | None = None) -> float:
+    """sum_s n_s/2 log(mean(r_s^2)) (over tau_s with ``taus``); a thousandth of the noise floor keeps the log
+    finite on noiseless data."""
+    total = sum(0.5 * len(x) * np.log(np.mean(x * x) + 1e-3 * ev.floor[s]) / (taus[s] if taus else 1.0)
+                for s, x in r.items())
     return float(total) if np.isfinite(total) else FAILED_NLL
 
 

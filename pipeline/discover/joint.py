@@ -110,20 +110,24 @@ def moved_effects(effects: tuple[Effect, ...], step: np.ndarray, trust: float = 
     return with_values(effects, np.array(out))
 
 
-def joint_fit(ev, effects: tuple[Effect, ...], max_nfev: int = 40, held: tuple[Effect, ...] = ()) -> tuple[Effect, ...]:
+def joint_fit(ev, effects: tuple[Effect, ...], max_nfev: int = 40, held: tuple[Effect, ...] = (),
+              taus: dict[str, float] | None = None) -> tuple[Effect, ...]:
     """Every parameter of every effect at once (``estimate.fit``: trust region within the bounds), so the
     result does not depend on the order the effects were found in.
 
     Each signal's residual is divided by its RMS at the start (the concentrated likelihood's weights
     there), each parameter by its own size (``effect_unknowns(scaled=True)``); the fit is kept only if
     the likelihood improves.  ``held``: effects in the model at their given values, not fitted (a
-    profile over one of them).
+    profile over one of them).  ``taus``: each signal's residual autocorrelation time at a first optimum,
+    its rows counted as that many times fewer (the criterion's likelihood, ``estimate.fit``'s inflation):
+    a signal whose misfit is smooth in time does not outweigh the independent samples of another.
     """
     if not effects:
         return effects
     unknowns = [u for e in effects for u in effect_unknowns(e, scaled=True)]
     start = residuals(ev.meas, ev.sim((*effects, *held)))
-    weight = {s: 1.0 / np.sqrt(float(np.mean(r * r)) + 1e-3 * ev.floor[s]) for s, r in start.items()}
+    tau = taus or {s: 1.0 for s in start}
+    weight = {s: 1.0 / np.sqrt((float(np.mean(r * r)) + 1e-3 * ev.floor[s]) * tau[s]) for s, r in start.items()}
     size = sum(len(r) for r in start.values())
 
     def at(x: np.ndarray) -> tuple[Effect, ...]:
@@ -139,7 +143,7 @@ def joint_fit(ev, effects: tuple[Effect, ...], max_nfev: int = 40, held: tuple[E
     except ValueError:
         return effects
     trial = at(result.x)
-    return trial if ev.nll(ev.sim((*trial, *held))) < ev.nll(ev.sim((*effects, *held))) else effects
+    return trial if ev.nll(ev.sim((*trial, *held)), taus=taus) < ev.nll(ev.sim((*effects, *held)), taus=taus) else effects
 
 
 # relative finite-difference steps of 1e-4 of each parameter's size (an event-driven plant's likelihood is only

@@ -23,7 +23,7 @@ from pipeline.discover.candidates import Evaluator
 from pipeline.discover.joint import effect_intervals, joint_fit
 from pipeline.discover.measurement import MAX_SAMPLES, measurement_from_kinematics
 from pipeline.discover.residuals import noise_floor
-from pipeline.discover.criterion import nameable
+from pipeline.discover.criterion import nameable, residual_taus
 from pipeline.discover.search import Selection, excess
 from pipeline.discover.start_refit import held_start_sensitivity, refine_start
 
@@ -41,7 +41,7 @@ def refit_on_more_samples(sel: Selection, kin: pd.DataFrame, config: RigConfig, 
     longer = replace(measurement_from_kinematics(kin, config, name, zero_samples=zero_samples,
                                                  max_samples=REFIT_SAMPLES), lost_shifts=window.lost_shifts)
     ev = Evaluator(longer, noise_floor(longer, longer.replay(longer.spec())))
-    effects = joint_fit(ev, sel.effects)
+    effects = joint_fit(ev, sel.effects, taus=residual_taus(ev, sel.effects))
     if effects == sel.effects or not all(nameable(e, sel.policy) for e in effects):
         return replace(sel, work=sel.work + ev.work)
     on_window = Evaluator(window, sel.floor)

@@ -261,6 +261,19 @@ def _zero_beside_structure(effect: Effect, ex_after: dict[str, float], policy: D
     return bool(signal) and any(x > policy.structure_floors for s, x in ex_after.items() if s != signal)
 
 
+def _polished(ev: Evaluator, effects: tuple[Effect, ...], policy: DiscoveryPolicy) -> tuple[Effect, ...]:
+    """The values of an explanation, refitted under the likelihood with each signal counted in independent
+    samples at the model chosen (``joint_fit(taus=...)``): the angle's misfit, smooth over ~20 samples where
+    switches are known to a sample, no longer outweighs the current on a parameter the current measures
+    (a sensor's offset).  Before the start is refined for the model (a start refined for one set of values
+    and estimated for the others would be a step the fit cannot cross); only where the model explains the
+    recording and still does after (what leaves structure is checked further, and its work is theirs)."""
+    if not effects or max(excess(ev, effects).values()) > policy.structure_floors:
+        return effects
+    polished = joint_fit(ev, effects, taus=residual_taus(ev, effects))
+    return polished if max(excess(ev, polished).values()) <= policy.structure_floors else effects
+
+
 def _search(meas: Measurement, names: tuple[str, ...], policy: DiscoveryPolicy, spent: int = 0) -> Selection:
     """The rounds, further starts, elimination and verdict on one settling of the switches; ``spent``: the
     work of an earlier search on the recording (the budgets bound them together)."""
@@ -292,6 +305,7 @@ def _search(meas: Measurement, names: tuple[str, ...], policy: DiscoveryPolicy, 
     effects, rounds = _stepwise(ev, names, folds, policy, taus, best)
     adopted = {e.name for r in runs for e in r.effects} | {c.fit.name for rnd in rounds for c in rnd
                                                            if getattr(c, "accepted", False)}
+    effects = _polished(ev, effects, policy)
     refine_start(ev, effects)
     ex_after = excess(ev, effects)
     if unreadable := [e for e in effects if _zero_beside_structure(e, ex_after, policy)]:
