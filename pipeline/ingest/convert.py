@@ -28,7 +28,7 @@ class ZeroEstimate:
     zero_v: float
     spread_v: float           # standard deviation of the rest samples' voltage
     samples: int              # the rest readings averaged
-    method: str               # "configured", "dir == 0", "before the encoder first moves"
+    method: str               # "configured", "motor off before first driven[, pinion still]", "before the encoder first moves"
     standard_error_v: float = 0.0    # of zero_v (0 when configured: a user's number is taken as exact)
 
     def to_dict(self) -> dict:
@@ -67,16 +67,25 @@ def range_violations(values: dict[str, np.ndarray], cfg: RigConfig) -> tuple[np.
 
 
 def at_rest(values: dict[str, np.ndarray]) -> tuple[np.ndarray, str]:
-    """Samples with no armature current: motor commanded off, else the ones before the encoder first moves.
+    """Samples with no armature current: the motor-off samples before the motor is first driven, where
+    the pinion stands still over them; else the ones before the encoder first moves.
 
-    With ``dir`` logged, a dir == 0 sample right after a driven one is skipped
-    (the current is still decaying); without it, the encoder standing still at
-    its first value means the motor has not been driven yet.
+    The winding's current decays over La/Ra (7 s on Table I's motor), so a motor-off sample after a
+    driven one still carries it, and so does a segment that opens after a board reset with the pinion
+    still moving (the springs push it back against the decaying current for seconds: ~0.1 A on a
+    virtual rig, two steps of the 20 A part's ADC).  A pinion that moves more than a count with the motor
+    off says the winding is not at rest: that segment has no rest samples.  Without ``dir``, the
+    encoder standing still at its first value means the motor has not been driven yet.
     """
     if "dir" in values:
-        off = values["dir"] == 0
-        settled = off & np.concatenate(([True], off[:-1]))
-        return settled, "dir == 0"
+        d = values["dir"]
+        driven = np.flatnonzero(d != 0)
+        first = int(driven[0]) if len(driven) else len(d)
+        rest = np.zeros(len(d), dtype=bool)
+        c = values.get("counts")
+        if c is None or first == 0 or int(c[:first].max()) - int(c[:first].min()) <= 1:
+            rest[:first] = True
+        return rest, "motor off before first driven, pinion still" if c is not None else "motor off before first driven"
     if "counts" not in values:
         return np.zeros(len(values["adc"]), dtype=bool), "dir == 0 or the encoder standing still, neither logged"
     counts = values["counts"]

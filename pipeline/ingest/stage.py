@@ -7,7 +7,7 @@
 from __future__ import annotations
 
 import hashlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -56,20 +56,26 @@ def _refuse_if_unreadable(parsed: ParsedFile, quarantined: list[Quarantined], ke
 
 def _current_zeros(parsed: ParsedFile, flagged: dict[int, str], cfg: RigConfig, source: str
                    ) -> tuple[dict[int, ZeroEstimate], dict[int, str]]:
-    """The ACS712 zero of each segment that logs current; a segment with no samples at rest (zero_v
-    = "auto") is flagged while another segment can still be used, else the recording is refused."""
-    zeros, refusals = {}, {}
+    """The ACS712 zero of each segment that logs current.  A segment with no samples at rest (zero_v =
+    "auto"; after a board reset the winding may still carry current) takes the zero of the last earlier
+    segment that has its own (a first segment: the next one's), as the live decoder does: the zero is
+    the sensor part's, which a reset does not change.  Where no segment has any, the recording is refused."""
+    zeros, failed = {}, {}
     for seg in parsed.segments:
         if seg.index in flagged or "adc" not in seg.values:
             continue
         try:
             zeros[seg.index] = estimate_zero(seg.values, cfg, source)
         except IngestError as err:
-            refusals[seg.index] = f"not made a run: {err.detail}"
-            last = err
-    if refusals and len(refusals) + len(flagged) == len(parsed.segments):
-        raise last
-    return zeros, refusals
+            failed[seg.index] = err
+    if failed and not zeros:
+        raise next(iter(failed.values()))
+    own = sorted(zeros)
+    for index in failed:
+        earlier = [k for k in own if k < index]
+        donor = earlier[-1] if earlier else own[0]
+        zeros[index] = replace(zeros[donor], method=f"{zeros[donor].method}, of segment {donor} (none at rest in this one)")
+    return zeros, {}
 
 
 @dataclass

@@ -75,6 +75,7 @@ class LineDecoder:
     _zero_v: float | None = None
     _zero_segment: int = 0
     _rest: dict[str, list[int]] = field(default_factory=dict)
+    _earlier_zero: float | None = None       # the last earlier segment's own zero (the sensor part's)
     _early: list[str] = field(default_factory=list)
     _sep: bytes = b"\n"
     _seen_lf: bool = False
@@ -218,13 +219,16 @@ class LineDecoder:
         """Amps with ingest's formula; with ``zero_v = "auto"``, NaN until rest samples give the zero.
 
         As ingest, each segment (a board reset) gets its own zero, from its
-        rest samples: re-estimated with each batch until the motor has run, then kept.
+        rest samples: re-estimated with each batch until the motor has run, then kept; a segment with
+        none at rest takes the last earlier segment's.
         """
         out = np.full(len(segment), np.nan)
         for seg in np.unique(segment):
             rows = segment == seg
             adc = values["adc"][rows]
             if self._zero_segment != seg and self.cfg.current_sensor.zero_v == "auto":
+                if self._zero_v is not None:
+                    self._earlier_zero = self._zero_v
                 self._zero_segment, self._zero_v, self._rest = int(seg), None, {}
             zero = self._zero_v if self._zero_v is not None else self._estimate_zero(values, rows, logged)
             if zero is not None:
@@ -233,14 +237,14 @@ class LineDecoder:
 
     def _estimate_zero(self, values: dict[str, np.ndarray], rows: np.ndarray, logged: set[str]) -> float | None:
         motion = "dir" if "dir" in logged else "counts"
-        for key in ("adc", motion):
+        for key in ("adc", *(k for k in ("dir", "counts") if k in logged)):
             self._rest.setdefault(key, []).extend(values[key][rows].tolist())
         rest = {k: np.array(v, dtype=np.int64) for k, v in self._rest.items()}
         try:
             zero = estimate_zero(rest, self.cfg, self.source).zero_v
         except IngestError:
-            return None
+            zero = self._earlier_zero          # none at rest in this segment: the part's, as ingest takes it
         moved = np.any(rest["dir"] != 0) if motion == "dir" else np.any(rest["counts"] != rest["counts"][0])
-        if moved:
+        if moved and zero is not None:
             self._zero_v = zero
         return zero

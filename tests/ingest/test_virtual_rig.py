@@ -76,7 +76,7 @@ def test_artefact_class(tmp_path, name):
 def test_zero_auto_estimate_matches_the_part(tmp_path):
     rec, result = _make(tmp_path, Artefacts(), zero_v="auto")
     zero = result.report["segments"][0]["current_zero"]
-    assert zero["method"] == "dir == 0" and zero["samples"] >= 5
+    assert zero["method"] == "motor off before first driven, pinion still" and zero["samples"] >= 5
     part = rec.truth_meta["sensor"]["zero_v_part"]
     assert abs(zero["zero_v"] - part) < 3 * 5.0 / 1024
     assert zero["spread_v"] < 3 * 5.0 / 1024
@@ -93,3 +93,18 @@ def test_converted_signals_match_truth(tmp_path):
     np.testing.assert_allclose(df["t_s"], truth["t_ms"] / 1000 - truth["t_ms"].iloc[0] / 1000)
     err = df["current_a"] - truth["current_measured_a"]
     assert np.sqrt(np.mean(err**2)) < 0.1
+
+
+def test_zero_auto_after_a_board_reset_with_the_pinion_still_moving_is_the_parts(tmp_path):
+    """A reset mid-run, logging again 2 s later: the winding still carries current (La/Ra is 7 s) and the
+    springs push the pinion back against it, so the new segment's motor-off readings are not at rest.  Its
+    zero is the first segment's, which is the part's (the mean of floor-quantised readings: half a step below)."""
+    art = Artefacts(reset_after_s=3.0, reset_gap_s=2.0)
+    rec, result = _make(tmp_path, art, zero_v="auto")
+    step = 5.0 / 1024
+    expected = rec.truth_meta["sensor"]["zero_v_part"] - 0.5 * step
+    zeros = [s["current_zero"] for s in result.report["segments"]]
+    assert len(zeros) == 2 and len(result.runs) == 2
+    assert zeros[1]["method"].endswith("of segment 0 (none at rest in this one)")
+    for zero in zeros:
+        assert abs(zero["zero_v"] - expected) < 0.5 * step
