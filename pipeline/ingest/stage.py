@@ -55,11 +55,12 @@ def _refuse_if_unreadable(parsed: ParsedFile, quarantined: list[Quarantined], ke
 
 
 def _current_zeros(parsed: ParsedFile, flagged: dict[int, str], cfg: RigConfig, source: str
-                   ) -> tuple[dict[int, ZeroEstimate], dict[int, str]]:
+                   ) -> dict[int, ZeroEstimate]:
     """The ACS712 zero of each segment that logs current.  A segment with no samples at rest (zero_v =
     "auto"; after a board reset the winding may still carry current) takes the zero of the last earlier
-    segment that has its own (a first segment: the next one's), as the live decoder does: the zero is
-    the sensor part's, which a reset does not change.  Where no segment has any, the recording is refused."""
+    segment that has its own, as the live decoder does (a first segment: the next one's, which the live
+    decoder cannot know yet): the zero is the sensor part's, which a reset does not change.  Where no
+    segment has any, the recording is refused."""
     zeros, failed = {}, {}
     for seg in parsed.segments:
         if seg.index in flagged or "adc" not in seg.values:
@@ -75,7 +76,7 @@ def _current_zeros(parsed: ParsedFile, flagged: dict[int, str], cfg: RigConfig, 
         earlier = [k for k in own if k < index]
         donor = earlier[-1] if earlier else own[0]
         zeros[index] = replace(zeros[donor], method=f"{zeros[donor].method}, of segment {donor} (none at rest in this one)")
-    return zeros, {}
+    return zeros
 
 
 @dataclass
@@ -99,7 +100,7 @@ def _plain_capture(data: bytes, cfg: RigConfig, source: str, stem: str, parsed: 
     """``read_capture`` of a capture ``read_plain_signals`` took: one segment, all of it kept, its columns
     made; what is left is the zero estimate (and with it current_a, when zero_v is "auto")."""
     seg = parsed.segments[0]
-    zeros, _ = _current_zeros(parsed, {}, cfg, source)      # raises, as below, when "auto" finds no rest
+    zeros = _current_zeros(parsed, {}, cfg, source)      # raises, as below, when "auto" finds no rest
     if "adc" in seg.values and "current_a" not in cols:
         cols["current_a"] = amps(cols["current_v"], zeros[seg.index].zero_v, cfg)
     cols["segment"] = np.zeros(len(seg.line), dtype=np.int32)
@@ -128,8 +129,7 @@ def read_capture(data: bytes, cfg: RigConfig, source: str, stem: str) -> Capture
                                for s in parsed.segments if len(s.line) < MIN_SEGMENT_ROWS}
     if len(flagged) == len(parsed.segments):
         raise IngestError(f"no segment with at least {MIN_SEGMENT_ROWS} readable rows", path=source)
-    zeros, refusals = _current_zeros(parsed, flagged, cfg, source)
-    flagged |= refusals
+    zeros = _current_zeros(parsed, flagged, cfg, source)
     keep = [s for s in parsed.segments if s.index not in flagged]
     names = {s.index: stem if len(keep) == 1 else segment_run_name(stem, k + 1) for k, s in enumerate(keep)}
     runs = [RunData(names[seg.index], to_signals(seg.values, seg.line, seconds_from_start(t, cfg.columns.time_unit),
