@@ -290,7 +290,7 @@ def test_a_sensor_offset_is_not_named_beside_an_angle_the_model_cannot_explain(t
     offset was named."""
     draw, doc = _randomised(78, tmp_path, after_reset=True)
     assert draw.outside and doc["verdict"] == "unexplained" and doc["effects"] == []
-    assert doc["pruned"]["effects"] == ["current_sensor_offset"]           # passed its round, then dropped
+    assert "current_sensor_offset" in doc["pruned"]["effects"]             # passed its round, then dropped
 
 
 def test_a_load_torque_is_found_on_the_segment_whose_counter_started_at_the_springs_rest(tmp_path):
