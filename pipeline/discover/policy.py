@@ -52,8 +52,9 @@ class DiscoveryPolicy:
     # --- the search's extent
     # most effects stacked on one recording: against an ever longer model of small misfits
     max_effects: int = 3
-    # further starts are tried where the plain run leaves more than this many noise variances in some
-    # signal: the true model leaves 1.6-2.9 in the angle (the clock's tick), and a stand-in picked first
+    # further starts are tried (and, after elimination, members exchanged) where the model leaves more
+    # than this many noise variances in some signal: the true model leaves 1.6-2.9 in the angle (the
+    # clock's tick), and a stand-in picked first
     # (viscous friction for a delay and a driver drop together) can leave far less than ``structure_floors``
     # while its partners' pattern stays (25, the verdict's line, before: tuning seeds 349 -> 348 of 360 with
     # 5 or 10, a rack inertia read with springs beside it; six seeds used earlier 686 -> 689 of 720, none lost)

@@ -10,10 +10,12 @@ not clear a charge (``room``).  Where the rounds leave more than the clock's tic
 run from each, and the model with the best criterion (held-out likelihood less charges, one set of
 autocorrelation times for all) is kept, because the first pick among near-twins (a softer spring and a
 heavier rack both slow the oscillation; viscous friction for a delay and a driver drop together) is made
-before the partners are known.  Then each effect the others made redundant (refitted with them, it
-falls below a nameable size, or its gain no longer clears its charge) is dropped, and where one was, the
-rounds run again from what is left (stepwise selection, each step kept only where the criterion
-improves): the room a stand-in held goes to what it stood in for.  After a board reset the counter's
+before the partners are known; a run that comes to a model another run passed through ends there.  Then
+each effect the others made redundant (refitted with them, it falls below a nameable size, or its gain no
+longer clears its charge) is dropped, and where one was, the rounds run again from what is left; where
+none was and the model still leaves more than the clock's tick, each member in turn is exchanged for the
+best of a round run in its place (stepwise selection with exchange, each step kept only where the
+criterion improves): the room a stand-in held goes to what it stood in for.  After a board reset the counter's
 zero, a nuisance held from the base model's fit through the rounds, is first estimated again under the
 model found (``start_refit.hold_offset_of``), so the elimination and the verdict judge every model at one
 offset.
@@ -182,14 +184,19 @@ def _round(ev: Evaluator, effects: tuple[Effect, ...], remaining: list[str], fol
 
 
 def _forward(ev: Evaluator, names: tuple[str, ...], folds, policy: DiscoveryPolicy,
-             start: Candidate | None, first_round: list[Candidate], effects: tuple[Effect, ...] = ()) -> _Run:
-    """Forward selection from ``effects``, or from ``start`` adopted out of round one's ``first_round``."""
+             start: Candidate | None, first_round: list[Candidate], effects: tuple[Effect, ...] = (),
+             reached: set[frozenset[str]] | None = None) -> _Run | None:
+    """Forward selection from ``effects``, or from ``start`` adopted out of round one's ``first_round``.
+    ``reached``: the models earlier runs passed through, to which this run's are added; a run that comes
+    to one of them would go on as that run did, so it ends there (None)."""
     rounds: list[list[Candidate]] = []
     if start is not None:
         effects = start.fit.effects
         rounds.append([replace(c, accepted=c is start) if isinstance(c, Candidate) else c for c in first_round])
-    while len(effects) < policy.max_effects and ev.work <= policy.work_budget and room(ev, effects) > min(
-            charge(n, policy) for n in names):
+    while reached is None or _joins(reached, effects):
+        if (len(effects) >= policy.max_effects or ev.work > policy.work_budget
+                or room(ev, effects) <= min(charge(n, policy) for n in names)):
+            break
         remaining = [n for n in names if n not in {e.name for e in effects}]
         if not remaining:
             break
@@ -200,7 +207,18 @@ def _forward(ev: Evaluator, names: tuple[str, ...], folds, policy: DiscoveryPoli
             break
         adopt.accepted = True
         effects = adopt.fit.effects
+    else:
+        return None
     return _Run(effects=effects, rounds=rounds)
+
+
+def _joins(reached: set[frozenset[str]], effects: tuple[Effect, ...]) -> bool:
+    """Records ``effects``' model in ``reached``; False where it was there already."""
+    key = frozenset(e.name for e in effects)
+    if key in reached:
+        return False
+    reached.add(key)
+    return True
 
 
 def _size_share(effect: Effect) -> float:
@@ -232,22 +250,31 @@ def _prune(ev: Evaluator, effects: tuple[Effect, ...], folds, policy: DiscoveryP
 
 
 def _stepwise(ev: Evaluator, names: tuple[str, ...], folds, policy: DiscoveryPolicy, taus: dict[str, float],
-              run: _Run) -> tuple[tuple[Effect, ...], list[list[Candidate]]]:
-    """Stepwise selection: backward elimination, and, where it dropped an effect, forward selection again
-    from what is left, until neither changes the model.  A stand-in adopted early and dropped once its
-    partners are in leaves room for the effect it stood in for.  A step is kept only where the criterion
+              run: _Run, exchange: bool = True) -> tuple[tuple[Effect, ...], list[list[Candidate]]]:
+    """Stepwise selection: backward elimination; where it dropped an effect, forward selection again from
+    what is left; where it did not, an exchange (``_exchange``) and forward selection from that; until none
+    changes the model.  A stand-in adopted early and dropped once its partners are in leaves room for the
+    effect it stood in for.  A step is kept only where the criterion
     (held-out nll + charges, under the residual correlation ``taus``) improves, and no model twice."""
     def key(effects: tuple[Effect, ...]) -> frozenset[str]:
         return frozenset(e.name for e in effects)
 
     effects, rounds = _prune(ev, run.effects, folds, policy, taus), list(run.rounds)
     dropped, seen = len(effects) < len(run.effects), {key(run.effects), key(effects)}
-    while dropped and ev.work <= policy.work_budget:
+    while ev.work <= policy.work_budget:
+        if not dropped:
+            swap = _exchange(ev, names, folds, policy, taus, effects) if exchange else None
+            if swap is None or key(swap[0]) in seen:
+                break
+            seen.add(key(swap[0]))
+            effects = swap[0]
+            rounds.append([replace(c, round=len(rounds) + 1) for c in swap[1]])
         again = _forward(ev, names, folds, policy, None, [], effects)
         grown = _prune(ev, again.effects, folds, policy, taus)
         if key(grown) in seen or (criterion(ev, grown, folds, taus, policy)
                                   >= criterion(ev, effects, folds, taus, policy)):
-            break
+            dropped = False              # growing changed nothing: an exchange next, or the end
+            continue
         seen.add(key(grown))
         dropped = len(grown) < len(again.effects)
         # the rounds numbered on from the run's, in the order they ran
@@ -256,9 +283,42 @@ def _stepwise(ev: Evaluator, names: tuple[str, ...], folds, policy: DiscoveryPol
     return effects, rounds
 
 
+def _exchange(ev: Evaluator, names: tuple[str, ...], folds, policy: DiscoveryPolicy, taus: dict[str, float],
+              effects: tuple[Effect, ...]) -> tuple[tuple[Effect, ...], list[Candidate | Screened]] | None:
+    """Sequential replacement (Miller's stepwise exchange), where the model leaves more than the clock's
+    tick (``policy.starts_above``): each member in turn is taken out, the others refitted, and a round of
+    the candidates outside the model is run in its place; the first replacement that clears every check
+    and improves the criterion, each sensor zero it names readable, is returned with its round (None: none
+    does).  A stand-in picked while its
+    partners were missing (viscous friction for a driver's drop beside a delay) is kept by elimination,
+    which only asks whether it still earns its charge."""
+    if not effects or max(excess(ev, effects).values()) <= policy.starts_above:
+        return None
+    now = criterion(ev, effects, folds, taus, policy)
+    outside = [n for n in names if n not in {e.name for e in effects}]
+    rests = [joint_fit(ev, effects[:i] + effects[i + 1:]) for i in range(len(effects))]
+    # the member the others miss least first: the likeliest stand-in, and the budget may end the exchange
+    for rest in sorted(rests, key=lambda r: ev.nll(ev.sim(r))):
+        if ev.work > policy.work_budget or not outside:
+            break
+        tried, screened = _round(ev, rest, outside, folds, len(effects), policy)
+        for c in (c for c in tried if c.clears and _readable(ev, c.fit.effects, policy)):
+            if criterion(ev, c.fit.effects, folds, taus, policy) < now:
+                c.accepted = True
+                return c.fit.effects, [*tried, *screened]
+    return None
+
+
 def _zero_beside_structure(effect: Effect, ex_after: dict[str, float], policy: DiscoveryPolicy) -> bool:
     signal = effect.PARAMS[0].zero_of
     return bool(signal) and any(x > policy.structure_floors for s, x in ex_after.items() if s != signal)
+
+
+def _readable(ev: Evaluator, effects: tuple[Effect, ...], policy: DiscoveryPolicy) -> bool:
+    """Whether every sensor zero the model names is readable (not beside structure in the other signals):
+    a model that would be cut down at the verdict is no better than what is kept."""
+    ex = excess(ev, effects)
+    return not any(_zero_beside_structure(e, ex, policy) for e in effects)
 
 
 def _polished(ev: Evaluator, effects: tuple[Effect, ...], policy: DiscoveryPolicy) -> tuple[Effect, ...]:
@@ -274,18 +334,25 @@ def _polished(ev: Evaluator, effects: tuple[Effect, ...], policy: DiscoveryPolic
     return polished if max(excess(ev, polished).values()) <= policy.structure_floors else effects
 
 
-def _search(meas: Measurement, names: tuple[str, ...], policy: DiscoveryPolicy, spent: int = 0) -> Selection:
-    """The rounds, further starts, elimination and verdict on one settling of the switches; ``spent``: the
-    work of an earlier search on the recording (the budgets bound them together)."""
+def _search(meas: Measurement, names: tuple[str, ...], policy: DiscoveryPolicy, spent: int = 0,
+            resume: tuple[Effect, ...] = (), exchange: bool = True) -> Selection:
+    """The rounds, further starts, elimination, exchange and verdict on one settling of the switches;
+    ``spent``: the work of an earlier search on the recording (the budgets bound them together);
+    ``resume``: the model that search found, searched on from (its starts were tried there)."""
     floor = noise_floor(meas)
     ev = Evaluator(meas, floor, spent)
     folds = folds_by_cycle(meas)
-    plain = _forward(ev, names, folds, policy, None, [])
+    reached: set[frozenset[str]] = set()
+    # resumed: the rounds over the model found first (each scanned and fitted afresh: the switches moved
+    # under its values), then over the catalogue
+    found = _forward(ev, tuple(e.name for e in resume), folds, policy, None, []) if resume else _Run((), [])
+    plain = _forward(ev, names, folds, policy, None, [], found.effects, reached=reached)
+    plain.rounds[:0] = found.rounds
     runs = [plain]
     first = plain.rounds[0] if plain.rounds else []
     # other starts where the plain run leaves more than the clock does (a wrong twin first leaves its partner's
     # pattern); after a reset every trial fits a counter zero too: one run only
-    if meas.angle_reference_known and max(excess(ev, plain.effects).values()) > policy.starts_above:
+    if not resume and meas.angle_reference_known and max(excess(ev, plain.effects).values()) > policy.starts_above:
         # round one's others that clear every check; where none does, those that fail only the evidence (the
         # held-out likelihood of a start is judged on the model it leads to: partners can be needed together)
         others = [c for c in first if isinstance(c, Candidate) and not c.accepted
@@ -294,15 +361,15 @@ def _search(meas: Measurement, names: tuple[str, ...], policy: DiscoveryPolicy, 
         for c in others[:policy.starts - 1]:
             if ev.work > policy.total_work_budget:
                 break
-            runs.append(_forward(ev, names, folds, policy, c, first))
+            if (run := _forward(ev, names, folds, policy, c, first, reached=reached)) is not None:
+                runs.append(run)
         # a further start counts where each sensor zero it names is readable (below), or the best would be cut down
-        runs = [plain, *(r for r in runs[1:]
-                         if not any(_zero_beside_structure(e, excess(ev, r.effects), policy) for e in r.effects))]
+        runs = [plain, *(r for r in runs[1:] if _readable(ev, r.effects, policy))]
     # one likelihood for every model compared: the residual correlation the plain run leaves
     taus = residual_taus(ev, plain.effects)
     best = plain if len(runs) == 1 else min(runs, key=lambda r: criterion(ev, r.effects, folds, taus, policy))
     hold_offset_of(ev, best.effects)
-    effects, rounds = _stepwise(ev, names, folds, policy, taus, best)
+    effects, rounds = _stepwise(ev, names, folds, policy, taus, best, exchange)
     adopted = {e.name for r in runs for e in r.effects} | {c.fit.name for rnd in rounds for c in rnd
                                                            if getattr(c, "accepted", False)}
     effects = _polished(ev, effects, policy)
@@ -338,24 +405,30 @@ def _near_tie(rounds: list[list[Candidate]], policy: DiscoveryPolicy) -> dict | 
 
 
 def select(meas: Measurement, names: tuple[str, ...] | None = None,
-           policy: DiscoveryPolicy = DEFAULT_POLICY) -> Selection:
+           policy: DiscoveryPolicy = DEFAULT_POLICY, exchange: bool = True) -> Selection:
     """Discovery on one recording (replay fits; the closed loop is confirmed by the caller).
+    ``exchange``: members may be exchanged (``_exchange``); not on a rig whose base is itself in doubt
+    (no [model] declared), where what a member stands in for may be the base's own error, which the
+    check with the base free decides (``base_free``) within the same work.
 
     Switches the data leave a sample open (inferred ones on a guard, reversals on rows lost over serial)
     are nuisances, settled with the model: by the base model first, then, while what is found leaves
-    structure, by the model found, and searched again, until the switches no longer move (the run that
-    leaves least structure is kept)."""
+    structure, by the model found, and searched on from that model, until the switches no longer move (the
+    run that leaves least structure is kept).  The exchange of members, which judges models on one
+    settling, comes after: from the model kept, on its switches."""
     names = candidate_names(meas, names)
     if not ambiguous(meas):
-        return _search(meas, names, policy)
-    best = last = _search(settled(meas, ()), names, policy)
+        return _search(meas, names, policy, exchange=exchange)
+    best = last = _search(settled(meas, ()), names, policy, exchange=False)
     seen = {timing(best.meas)}
     while last.verdict == "unexplained" and last.effects and last.work <= policy.total_work_budget:
         again = settled(meas, last.effects)
         if timing(again) in seen:
             break
         seen.add(timing(again))
-        last = _search(again, names, policy, spent=last.work)
+        last = _search(again, names, policy, spent=last.work, resume=last.effects, exchange=False)
         if max(last.excess_after.values()) < max(best.excess_after.values()):
             best = last
-    return best
+    if not exchange or not best.effects or max(best.excess_after.values()) <= policy.starts_above:
+        return best
+    return _search(best.meas, names, policy, spent=last.work, resume=best.effects)

@@ -103,7 +103,7 @@ def discover(kin: pd.DataFrame, config: RigConfig, name: str, after_reset: bool 
     free, ``base_free``); ``policy``: the thresholds the search decides by."""
     t0 = time.perf_counter()
     sel = select(measurement_from_kinematics(kin, config, name, angle_reference_known=not after_reset,
-                                             zero_samples=zero_samples), policy=policy)
+                                             zero_samples=zero_samples), policy=policy, exchange=model_declared)
     sel = refit_on_more_samples(sel, kin, config, name, zero_samples)
     meas = sel.meas
     check = None

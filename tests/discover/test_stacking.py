@@ -146,6 +146,24 @@ def test_a_backlash_beside_a_delay_and_coulomb_friction_on_a_short_recording_is_
     _assert_named_as_pdr_discover_reads_it(21, 134, {"loop_delay", "coulomb_friction", "backlash"}, tmp_path)
 
 
+def test_a_stand_in_elimination_keeps_is_exchanged_for_the_effect_it_stood_in_for(tmp_path):
+    """Randomised draw 137 of seed 21: a loop delay, Coulomb friction and a 1.03 V driver drop.  The rounds
+    adopt a viscous friction for the drop; beside the delay and the Coulomb friction it still earns its
+    charge, so elimination keeps it, and the angle keeps ~90 noise variances.  Exchanged for the best of a
+    round run in its place, the drop is named and the angle falls to its noise."""
+    _assert_named_as_pdr_discover_reads_it(21, 137, {"loop_delay", "coulomb_friction", "driver_voltage_drop"},
+                                           tmp_path)
+
+
+def test_three_effects_found_on_switches_settled_by_the_base_model_are_kept_once_the_switches_move(tmp_path):
+    """Randomised draw 193 of seed 21, no ``dir``: Coulomb friction, a constant torque and a -0.106 A current
+    offset.  On the switches the base model settles, the three leave ~780 noise variances; settled again by
+    them, the search goes on from the model found (its effects fitted afresh) rather than from nothing, so
+    the work budget still holds the round that names the offset."""
+    _assert_named_as_pdr_discover_reads_it(21, 193, {"coulomb_friction", "constant_load_torque",
+                                                     "current_sensor_offset"}, tmp_path)
+
+
 def _assert_named_as_pdr_discover_reads_it(seed: int, index: int, names: set[str], work) -> None:
     """The draw as ``pdr discover`` reads it: every hidden effect named (``names``), none else, the verdict
     ``explained``, and each value within 5 % of the truth and inside its interval."""
