@@ -415,7 +415,8 @@ def select(meas: Measurement, names: tuple[str, ...] | None = None,
     are nuisances, settled with the model: by the base model first, then, while what is found leaves
     structure, by the model found, and searched on from that model, until the switches no longer move (the
     run that leaves least structure is kept).  The exchange of members, which judges models on one
-    settling, comes after: from the model kept, on its switches."""
+    settling, comes after, within the work budget: from the model kept, on its switches, kept where it
+    leaves no more structure."""
     names = candidate_names(meas, names)
     if not ambiguous(meas):
         return _search(meas, names, policy, exchange=exchange)
@@ -429,6 +430,8 @@ def select(meas: Measurement, names: tuple[str, ...] | None = None,
         last = _search(again, names, policy, spent=last.work, resume=last.effects, exchange=False)
         if max(last.excess_after.values()) < max(best.excess_after.values()):
             best = last
-    if not exchange or not best.effects or max(best.excess_after.values()) <= policy.starts_above:
+    if (not exchange or not best.effects or max(best.excess_after.values()) <= policy.starts_above
+            or last.work > policy.work_budget):
         return best
-    return _search(best.meas, names, policy, spent=last.work, resume=best.effects)
+    final = _search(best.meas, names, policy, spent=last.work, resume=best.effects)
+    return final if max(final.excess_after.values()) <= max(best.excess_after.values()) else best

@@ -118,3 +118,25 @@ def test_a_reversal_on_a_lost_row_within_the_interpolations_error_of_the_guard_i
     draw, d, doc = _discovered_draw(22, 185, tmp_path)
     assert draw.label == "clean" and draw.conventions["dir"] and d.selection.meas.lost_shifts
     assert doc["verdict"] == "none" and doc["effects"] == []
+
+
+@pytest.mark.slow
+@pytest.mark.long
+def test_a_search_that_spends_its_budget_settling_switches_keeps_the_effect_it_found(tmp_path):
+    """The shipped matrix's Coulomb friction without ``dir`` (case seed 448996746): settling the inferred
+    switches again takes the whole work budget; the exchange that follows, on the switches kept, has none
+    left, and its empty model must not replace the friction found."""
+    from benchmarks.discovery_matrix import MAGNITUDES, NOISE_V
+    from pipeline.config import default_config
+    from pipeline.discover.stage import discover
+    from pipeline.model.effects import make_effect
+    from pipeline.rig.serial import Artefacts
+    from tests.discover.synthetic import rig_kinematics
+
+    tc = MAGNITUDES["coulomb_friction"][0]
+    kin, cfg, _ = rig_kinematics((make_effect("coulomb_friction", {"Tc": tc}),), config=default_config(),
+                                 seed=1000 + 448996746, work=tmp_path, noise_v=NOISE_V["adc-step"],
+                                 artefacts=Artefacts(dir_column=False))
+    d = discover(kin, cfg, "coulomb-no-dir")
+    assert [e.name for e in d.effects][:1] == ["coulomb_friction"]
+    assert d.effects[0].parameters["Tc"] == pytest.approx(tc, rel=0.15)
