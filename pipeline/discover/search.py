@@ -15,9 +15,9 @@ each effect the others made redundant (refitted with them, it falls below a name
 longer clears its charge) is dropped, and where one was, the rounds run again from what is left; where
 none was and the model still leaves more than the clock's tick, each member in turn is exchanged for the
 best of a round run in its place (stepwise selection with exchange, each step kept only where the
-criterion improves): the room a stand-in held goes to what it stood in for.  After a board reset the counter's
-zero, a nuisance held from the base model's fit through the rounds, is first estimated again under the
-model found (``start_refit.hold_offset_of``), so the elimination and the verdict judge every model at one
+criterion improves): the room a stand-in held goes to what it stood in for.  After a board reset the
+counter's zero, a nuisance held from the base model's fit through the rounds, is first estimated again under
+the model found (``start_refit.hold_offset_of``), so the elimination and the verdict judge every model at one
 offset.
 
 The verdict.  ``none`` when nothing is adopted and the recording is at its noise floor;
@@ -254,8 +254,8 @@ def _stepwise(ev: Evaluator, names: tuple[str, ...], folds, policy: DiscoveryPol
     """Stepwise selection: backward elimination; where it dropped an effect, forward selection again from
     what is left; where it did not, an exchange (``_exchange``) and forward selection from that; until none
     changes the model.  A stand-in adopted early and dropped once its partners are in leaves room for the
-    effect it stood in for.  A step is kept only where the criterion
-    (held-out nll + charges, under the residual correlation ``taus``) improves, and no model twice."""
+    effect it stood in for.  A step is kept only where the criterion (held-out nll + charges, under the
+    residual correlation ``taus``) improves, and no model twice."""
     def key(effects: tuple[Effect, ...]) -> frozenset[str]:
         return frozenset(e.name for e in effects)
 
@@ -289,9 +289,8 @@ def _exchange(ev: Evaluator, names: tuple[str, ...], folds, policy: DiscoveryPol
     tick (``policy.starts_above``): each member in turn is taken out, the others refitted, and a round of
     the candidates outside the model is run in its place; the first replacement that clears every check
     and improves the criterion, each sensor zero it names readable, is returned with its round (None: none
-    does).  A stand-in picked while its
-    partners were missing (viscous friction for a driver's drop beside a delay) is kept by elimination,
-    which only asks whether it still earns its charge."""
+    does).  A stand-in picked while its partners were missing (viscous friction for a driver's drop beside
+    a delay) is kept by elimination, which only asks whether it still earns its charge."""
     if not effects or max(excess(ev, effects).values()) <= policy.starts_above:
         return None
     now = criterion(ev, effects, folds, taus, policy)
