@@ -212,12 +212,16 @@ def _forward(ev: Evaluator, names: tuple[str, ...], folds, policy: DiscoveryPoli
     return _Run(effects=effects, rounds=rounds)
 
 
+def _model_key(effects: tuple[Effect, ...]) -> frozenset[str]:
+    """A model as the set of its effects' names (their values aside)."""
+    return frozenset(e.name for e in effects)
+
+
 def _joins(reached: set[frozenset[str]], effects: tuple[Effect, ...]) -> bool:
     """Records ``effects``' model in ``reached``; False where it was there already."""
-    key = frozenset(e.name for e in effects)
-    if key in reached:
+    if _model_key(effects) in reached:
         return False
-    reached.add(key)
+    reached.add(_model_key(effects))
     return True
 
 
@@ -256,9 +260,7 @@ def _stepwise(ev: Evaluator, names: tuple[str, ...], folds, policy: DiscoveryPol
     changes the model.  A stand-in adopted early and dropped once its partners are in leaves room for the
     effect it stood in for.  A step is kept only where the criterion (held-out nll + charges, under the
     residual correlation ``taus``) improves, and no model twice."""
-    def key(effects: tuple[Effect, ...]) -> frozenset[str]:
-        return frozenset(e.name for e in effects)
-
+    key = _model_key
     effects, rounds = _prune(ev, run.effects, folds, policy, taus), list(run.rounds)
     dropped, seen = len(effects) < len(run.effects), {key(run.effects), key(effects)}
     while ev.work <= policy.work_budget:
